@@ -1,0 +1,104 @@
+"""Plain sample types that cross every boundary: adapters -> estimator -> sinks.
+
+All are frozen and slotted so they are cheap, hashable and safe to hand between tasks.
+Frames and units follow the conventions in :mod:`navd`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+
+@dataclass(frozen=True, slots=True)
+class ImuSample:
+    """Inertial increments over ``(t_us - dt_us, t_us]``.
+
+    Attributes:
+        t_us: sensor time stamp at the end of the interval, integer microseconds.
+        dt_us: integration interval, microseconds (> 0).
+        dtheta_x/y/z: angle increment, body FRD, rad.
+        dvel_x/y/z: velocity increment of specific force, body FRD, m/s.
+    """
+
+    t_us: int
+    dt_us: int
+    dtheta_x: float
+    dtheta_y: float
+    dtheta_z: float
+    dvel_x: float
+    dvel_y: float
+    dvel_z: float
+
+
+class FixType(IntEnum):
+    NONE = 0
+    FIX_2D = 2
+    FIX_3D = 3
+    DGPS = 4
+    RTK_FLOAT = 5
+    RTK_FIXED = 6
+
+
+@dataclass(frozen=True, slots=True)
+class GnssSample:
+    """One GNSS epoch.
+
+    Attributes:
+        t_us: time of validity of the fix (sensor clock), integer microseconds.
+        lat_rad, lon_rad: WGS-84 geodetic latitude and longitude, rad.
+        alt_m: height above the WGS-84 ellipsoid, m.
+        vel_n, vel_e, vel_d: velocity in NED, m/s.
+        h_acc_m, v_acc_m: 1-sigma horizontal / vertical position accuracy, m.
+        vel_acc_mps: 1-sigma speed accuracy (per axis), m/s.
+        fix_type: receiver fix type.
+        pos_ecef_m: optional ECEF position (x, y, z), m.
+        vel_ecef_mps: optional ECEF velocity (x, y, z), m/s.
+    """
+
+    t_us: int
+    lat_rad: float
+    lon_rad: float
+    alt_m: float
+    vel_n: float
+    vel_e: float
+    vel_d: float
+    h_acc_m: float
+    v_acc_m: float
+    vel_acc_mps: float
+    fix_type: FixType = FixType.FIX_3D
+    pos_ecef_m: tuple[float, float, float] | None = None
+    vel_ecef_mps: tuple[float, float, float] | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class NavSolution:
+    """Estimator output at one IMU time.
+
+    Attributes:
+        t_us: time of validity, microseconds.
+        quat_nb: attitude quaternion (w, x, y, z) of C_b^n.
+        roll_rad, pitch_rad, yaw_rad: ZYX Euler angles, rad (yaw in (-pi, pi]).
+        lat_rad, lon_rad, alt_m: WGS-84 position.
+        vel_n: NED velocity, m/s.
+        att_sd_rad: 1-sigma of (roll, pitch, yaw), rad.
+        gyro_bias_rps: estimated gyro bias, body FRD, rad/s.
+        accel_bias_mps2: estimated accelerometer bias, body FRD, m/s^2.
+        heading_aligned: True once heading is initialised from a trusted source.
+        rate_b: last bias-compensated angular rate, body FRD, rad/s.
+    """
+
+    t_us: int
+    quat_nb: tuple[float, float, float, float]
+    roll_rad: float
+    pitch_rad: float
+    yaw_rad: float
+    lat_rad: float
+    lon_rad: float
+    alt_m: float
+    vel_n: tuple[float, float, float]
+    att_sd_rad: tuple[float, float, float]
+    gyro_bias_rps: tuple[float, float, float]
+    accel_bias_mps2: tuple[float, float, float]
+    heading_aligned: bool
+    rate_b: tuple[float, float, float]
