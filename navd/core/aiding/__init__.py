@@ -1,0 +1,1 @@
+"""Measurement models, one module per kind of aiding; each opens with its model equation."""

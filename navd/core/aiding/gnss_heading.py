@@ -1,0 +1,69 @@
+"""Completed heading update: heading from GNSS course (seed 001), DESIGN §4.
+
+With chi = atan2(vE, vN) the course of the lever-arm-corrected GNSS velocity, and psi_hat
+the INS yaw, the innovation and its linear model are::
+
+    z = wrap(psi_hat - chi)
+    z = -tan(theta) (cos(psi) phiN + sin(psi) phiE) - phiD + v_chi
+
+(from C_hat = Exp(-phi) C; the seed's eq. 21 coefficient mapped to NED and to our error
+sign).  chi shares its noise with the velocity measurement: with ``J = [-vE, vN, 0]/|v_h|^2``
+the joint covariance of (velocity, course) innovations is ``[[R_v, R_v J^T], [J R_v,
+J R_v J^T + s_beta^2]]``, where s_beta models sideslip/crab.  The block is appended to the
+velocity block (row 3) and whitened jointly in :func:`navd.core.kalman.gated_update`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from navd.core._jit import jit
+
+Arr = npt.NDArray[np.float64]
+
+
+@jit
+def course_row(H: Arr, z: Arr, R: Arr, row: int, mat_nb: Arr,
+               vn: float, ve: float, sd_h: float, sd_beta: float) -> None:
+    """Write the course row at ``row`` of H/z and its (co)variances into R.
+
+    R[0:row, 0:row] must already hold the velocity covariance R_v when row == 3 (joint);
+    with row == 0 only the course variance ``sd_h^2/|v_h|^2 + sd_beta^2`` is written
+    (course-only update; sd_h is the per-axis horizontal speed sigma, m/s).
+    """
+    yaw = math.atan2(mat_nb[1, 0], mat_nb[0, 0])
+    sp = -mat_nb[2, 0]
+    cp = math.sqrt(max(0.0, 1.0 - sp * sp))
+    tp = sp / max(cp, 1e-9)
+    chi = math.atan2(ve, vn)
+    d = yaw - chi
+    z[row] = (d + math.pi) % (2.0 * math.pi) - math.pi
+    for k in range(H.shape[1]):
+        H[row, k] = 0.0
+    H[row, 0] = -tp * math.cos(yaw)
+    H[row, 1] = -tp * math.sin(yaw)
+    H[row, 2] = -1.0
+    vh2 = vn * vn + ve * ve
+    jn = -ve / vh2
+    je = vn / vh2
+    if row == 3:
+        c0 = jn * R[0, 0] + je * R[1, 0]
+        c1 = jn * R[0, 1] + je * R[1, 1]
+        c2 = jn * R[0, 2] + je * R[1, 2]
+        R[3, 0] = c0
+        R[3, 1] = c1
+        R[3, 2] = c2
+        R[0, 3] = c0
+        R[1, 3] = c1
+        R[2, 3] = c2
+        R[3, 3] = jn * c0 + je * c1 + sd_beta * sd_beta
+    else:
+        R[row, row] = sd_h * sd_h / vh2 + sd_beta * sd_beta
+
+
+def course_sd(speed_sd_mps: float, speed_h_mps: float) -> float:
+    """1-sigma of the course from a per-axis speed accuracy, rad (sigma_v / |v_h|)."""
+    return speed_sd_mps / speed_h_mps

@@ -1,0 +1,56 @@
+"""GNSS velocity update (antenna lever arm in body FRD, rate-induced velocity removed).
+
+Innovation, computed minus measured, NED m/s::
+
+    z = v_hat + C_hat (w_hat x l_b) - v_gnss
+    z = [(C (w x l)) x] phi + dv - C [l x] dbg + v,     v ~ N(0, R_v)
+
+where ``w_hat = w + dbg`` is the bias-compensated body rate (bias errors are residuals).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from navd.core._jit import jit
+
+Arr = npt.NDArray[np.float64]
+
+
+@jit
+def fill(H: Arr, z: Arr, R: Arr, mat_nb: Arr, vel_n: Arr, rate_b: Arr, lever_b: Arr,
+         vn: float, ve: float, vd: float, sd_h: float, sd_v: float) -> int:
+    """Write the 3-row velocity block into rows 0..2 of H, z, R; return m = 3."""
+    H[:, :] = 0.0
+    R[:, :] = 0.0
+    # w x l in body
+    wx = rate_b[1] * lever_b[2] - rate_b[2] * lever_b[1]
+    wy = rate_b[2] * lever_b[0] - rate_b[0] * lever_b[2]
+    wz = rate_b[0] * lever_b[1] - rate_b[1] * lever_b[0]
+    ux = mat_nb[0, 0] * wx + mat_nb[0, 1] * wy + mat_nb[0, 2] * wz
+    uy = mat_nb[1, 0] * wx + mat_nb[1, 1] * wy + mat_nb[1, 2] * wz
+    uz = mat_nb[2, 0] * wx + mat_nb[2, 1] * wy + mat_nb[2, 2] * wz
+    z[0] = vel_n[0] + ux - vn
+    z[1] = vel_n[1] + uy - ve
+    z[2] = vel_n[2] + uz - vd
+    H[0, 1] = -uz
+    H[0, 2] = uy
+    H[1, 0] = uz
+    H[1, 2] = -ux
+    H[2, 0] = -uy
+    H[2, 1] = ux
+    H[0, 3] = 1.0
+    H[1, 4] = 1.0
+    H[2, 5] = 1.0
+    # -C [l x]
+    lx, ly, lz = lever_b[0], lever_b[1], lever_b[2]
+    for i in range(3):
+        c0, c1, c2 = mat_nb[i, 0], mat_nb[i, 1], mat_nb[i, 2]
+        H[i, 9] = -(c1 * lz - c2 * ly)
+        H[i, 10] = -(-c0 * lz + c2 * lx)
+        H[i, 11] = -(c0 * ly - c1 * lx)
+    R[0, 0] = sd_h * sd_h
+    R[1, 1] = sd_h * sd_h
+    R[2, 2] = sd_v * sd_v
+    return 3

@@ -1,0 +1,509 @@
+"""The estimator: one entry point, :meth:`Estimator.push`, for every input sample.
+
+A 15-state error-state Kalman filter (DESIGN §3) around the strapdown mechanization, aided
+by GNSS position, velocity and (in ``completed`` mode) GNSS course as heading (§4), with an
+optional robust GNSS velocity pre-filter (MCTLS, §5).  Every array is allocated in
+``__init__``; a steady-state IMU step or GNSS update creates no ndarray.
+
+The estimator is a plain library: no clocks, no I/O, no logging.  Anything it refuses is
+counted in :attr:`Estimator.counters` (the daemon turns counts into rate-limited log lines).
+
+Life cycle::
+
+    WAIT   collect IMU increments for levelling (static) and wait for a GNSS fix
+    NAV    navigate; heading is "aligned" once it came from config or a trusted course
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from navd.config import EstimatorConfig
+from navd.core import kalman
+from navd.core.aiding import gnss_heading, gnss_position, gnss_velocity
+from navd.core.chi2 import chi2_quantile
+from navd.core.earth import geodetic_to_ecef, mat_ne_into, radii
+from navd.core.output import attitude_outputs
+from navd.core.rotation import euler_to_mat_into, exp_into, mat_to_euler, mul3_into
+from navd.types import FixType, GnssSample, ImuSample, NavSolution
+
+if TYPE_CHECKING:
+    from navd.core.aiding.mctls import Mctls
+
+Sample = ImuSample | GnssSample
+
+_WAIT = 0
+_NAV = 1
+
+# GNSS accuracies below these are treated as missing and replaced by config defaults
+_DEFAULT_H_ACC = 5.0
+_DEFAULT_V_ACC = 10.0
+_DEFAULT_VEL_ACC = 0.5
+
+
+class Estimator:
+    """GNSS/INS attitude and heading estimator.
+
+    Attributes (read-only for callers):
+        mat_nb: C_b^n (3, 3).
+        vel_n: NED velocity (3,), m/s.
+        pos: (lat_rad, lon_rad, alt_m).
+        bias_g: gyro bias estimate, body FRD (3,), rad/s.
+        bias_a: accelerometer bias estimate, body FRD (3,), m/s^2.
+        P: error covariance (15, 15) in the state order of :mod:`navd`.
+        dov: gravity disturbance (xi_rad, eta_rad, dg_d_mps2) used by the mechanization.
+        counters: accepted/rejected/skipped counts by name.
+        heading_aligned: heading came from config or a trusted GNSS course.
+    """
+
+    def __init__(self, config: EstimatorConfig | None = None) -> None:
+        self.cfg = config or EstimatorConfig()
+        c = self.cfg
+        self.mat_nb = np.eye(3)
+        self.vel_n = np.zeros(3)
+        self.pos = np.zeros(3)
+        self.bias_g = np.zeros(3)
+        self.bias_a = np.zeros(3)
+        self.dov = np.zeros(3)
+        self.P = np.zeros((15, 15))
+        self.x = np.zeros(15)
+        self._F = np.zeros((15, 15))
+        self._A = np.zeros((15, 15))
+        self._B = np.zeros((15, 15))
+        self._q = np.zeros(15)
+        self._work = np.zeros((8, 3, 3))
+        self._inc = np.zeros(6)
+        self._prev_inc = np.zeros(6)
+        self._acc = np.zeros(8)
+        self.rate_b = np.zeros(3)
+        self._H = np.zeros((4, 15))
+        self._z = np.zeros(4)
+        self._R = np.zeros((4, 4))
+        self._S = np.zeros((4, 4))
+        self._L = np.zeros((4, 4))
+        self._ph = np.zeros(15)
+        self._w4 = np.zeros(4)
+        self._M = np.zeros((3, 3))
+        self._lever = np.array(c.gnss.lever_arm, dtype=float)
+        self._cne = np.zeros((3, 3))
+        self._vel_ecef = np.zeros(3)
+        self._level_sum = np.zeros(6)
+
+        q = self._q
+        q[0:3] = c.imu.gyro_arw**2
+        q[3:6] = c.imu.accel_vrw**2
+        q[9:12] = c.imu.gyro_bias_rw**2
+        q[12:15] = c.imu.accel_bias_rw**2
+
+        p = c.filter.gate_prob
+        self._gate1 = chi2_quantile(p, 1)
+        self._gate3 = chi2_quantile(p, 3)
+        self._gate4 = chi2_quantile(p, 4)
+        self._gating = c.filter.robust != "none"
+        self._mctls: Mctls | None = None
+        if c.filter.robust == "mctls":
+            from navd.core.aiding.mctls import Mctls as _Mctls
+
+            self._mctls = _Mctls(window=c.mctls.window, order=c.mctls.order, mode="mctls")
+        self._course_enabled = c.filter.mode == "completed" and (
+            c.filter.profile == "ground"
+            or (c.filter.profile == "fixed_wing" and c.heading.crab_sd > 0.0))
+        self._sd_beta = (c.heading.sideslip_sd if c.filter.profile == "ground"
+                         else c.heading.crab_sd)
+
+        self.counters: defaultdict[str, int] = defaultdict(int)
+        self.heading_aligned = False
+        self.course_status = "off"
+        self.last_course_used_t_us = -1
+        self._reset_state()
+
+    # ------------------------------------------------------------------ state
+    def _reset_state(self) -> None:
+        self._stage = _WAIT
+        self.t_us = -1
+        self._last_gnss_t_us = -1
+        self._level_sum[:] = 0.0
+        self._level_n = 0
+        self._level_static = True
+        self._level_t = 0.0
+        self._pending_fix: GnssSample | None = None
+        self._course_rejects = 0
+        self.heading_aligned = False
+        self.x[:] = 0.0
+        self._prev_inc[:] = 0.0
+        self._acc[:] = 0.0
+        if self._mctls is not None:
+            self._mctls.reset()
+
+    @property
+    def initialized(self) -> bool:
+        return self._stage == _NAV
+
+    # ------------------------------------------------------------------ entry point
+    def push(self, sample: Sample) -> bool:
+        """Feed one sample; return True when the navigation state advanced or was corrected.
+
+        This is the only way input reaches the filter, so a log of push() calls replays a
+        run exactly.  Bad samples are counted and ignored; they never raise.
+        """
+        if isinstance(sample, ImuSample):
+            return self._push_imu(sample)
+        if isinstance(sample, GnssSample):
+            return self._push_gnss(sample)
+        self.counters["unknown_sample"] += 1
+        return False
+
+    # ------------------------------------------------------------------ IMU
+    def _push_imu(self, s: ImuSample) -> bool:
+        cnt = self.counters
+        if s.dt_us <= 0 or s.dt_us > self.cfg.filter.max_imu_gap * 1e6:
+            cnt["imu_bad_dt"] += 1
+            return False
+        if not (math.isfinite(s.dtheta_x) and math.isfinite(s.dtheta_y)
+                and math.isfinite(s.dtheta_z) and math.isfinite(s.dvel_x)
+                and math.isfinite(s.dvel_y) and math.isfinite(s.dvel_z)):
+            cnt["imu_nonfinite"] += 1
+            return False
+        dt = s.dt_us * 1e-6
+        amax = self.cfg.imu.max_accel * dt
+        wmax = self.cfg.imu.max_rate * dt
+        if (abs(s.dvel_x) > amax or abs(s.dvel_y) > amax or abs(s.dvel_z) > amax
+                or abs(s.dtheta_x) > wmax or abs(s.dtheta_y) > wmax or abs(s.dtheta_z) > wmax):
+            cnt["imu_out_of_range"] += 1
+            return False
+        if self.t_us >= 0:
+            if s.t_us == self.t_us:
+                cnt["imu_duplicate"] += 1
+                return False
+            if s.t_us < self.t_us:
+                cnt["imu_out_of_order"] += 1
+                if self.t_us - s.t_us > 1_000_000:
+                    # the sensor clock went back by seconds: a sensor reboot; start over
+                    cnt["reinit_time_jump"] += 1
+                    self._reset_state()
+                return False
+            gap = s.t_us - self.t_us - s.dt_us
+            if gap > self.cfg.filter.max_imu_gap * 1e6:
+                cnt["imu_gap"] += 1
+                if gap > 1_000_000:
+                    cnt["reinit_time_jump"] += 1
+                    self._reset_state()
+        self.t_us = s.t_us
+        cnt["imu"] += 1
+        if self._stage == _WAIT:
+            self._level(s, dt)
+            return False
+        kalman.imu_step(self.mat_nb, self.vel_n, self.pos, self.dov, self.bias_g, self.bias_a,
+                        self._inc, self._prev_inc, self._acc,
+                        s.dtheta_x, s.dtheta_y, s.dtheta_z, s.dvel_x, s.dvel_y, s.dvel_z,
+                        dt, self.cfg.filter.coning, self.cfg.filter.cov_interval,
+                        self.P, self._F, self._q, self._A, self._B, self._work, self.rate_b)
+        return True
+
+    def _level(self, s: ImuSample, dt: float) -> None:
+        """Average specific force and rate while waiting; levels once a fix is present."""
+        ls = self._level_sum
+        ls[0] += s.dvel_x
+        ls[1] += s.dvel_y
+        ls[2] += s.dvel_z
+        ls[3] += s.dtheta_x
+        ls[4] += s.dtheta_y
+        ls[5] += s.dtheta_z
+        self._level_n += 1
+        self._level_t += dt
+        if self._level_t >= self.cfg.init.level_time and self._pending_fix is not None:
+            self._start_nav(self._pending_fix)
+        elif self._level_t > 30.0:
+            # no fix for a long time: restart the average so it describes the present
+            ls[:] = 0.0
+            self._level_n = 0
+            self._level_t = 0.0
+
+    def _start_nav(self, fix: GnssSample) -> None:
+        c = self.cfg
+        ls = self._level_sum
+        T = self._level_t
+        fx, fy, fz = ls[0] / T, ls[1] / T, ls[2] / T
+        # Per-sample accelerometer noise of a MEMS IMU can exceed any useful motion
+        # threshold, so "static" is judged from the mean rate and the GNSS speed instead.
+        self._level_static = (
+            math.sqrt(ls[3] ** 2 + ls[4] ** 2 + ls[5] ** 2) / T < c.init.static_rate_tol
+            and math.sqrt(fix.vel_n**2 + fix.vel_e**2 + fix.vel_d**2) < c.init.static_speed)
+        roll = math.atan2(-fy, -fz)
+        pitch = math.atan2(fx, math.sqrt(fy * fy + fz * fz))
+        yaw = 0.0
+        self.heading_aligned = False
+        src = c.init.heading_source
+        speed = math.hypot(fix.vel_n, fix.vel_e)
+        if src == "config":
+            yaw = c.init.heading
+            self.heading_aligned = True
+        elif src == "gnss_course" and speed >= c.heading.align_speed:
+            yaw = math.atan2(fix.vel_e, fix.vel_n)
+            self.heading_aligned = True
+        euler_to_mat_into(self.mat_nb, roll, pitch, yaw)
+        self.pos[0] = fix.lat_rad
+        self.pos[1] = fix.lon_rad
+        self.pos[2] = fix.alt_m
+        self.vel_n[0] = fix.vel_n
+        self.vel_n[1] = fix.vel_e
+        self.vel_n[2] = fix.vel_d
+        self.bias_g[:] = 0.0
+        self.bias_a[:] = 0.0
+        P = self.P
+        P[:, :] = 0.0
+        tilt_sd = c.init.tilt_sd if self._level_static else max(c.init.tilt_sd, 5.0 * math.pi
+                                                                   / 180.0)
+        if not self._level_static:
+            self.counters["level_not_static"] += 1
+        P[0, 0] = P[1, 1] = tilt_sd**2
+        P[2, 2] = c.init.heading_sd**2 if self.heading_aligned else (math.pi / 2) ** 2
+        P[3, 3] = P[4, 4] = P[5, 5] = c.init.vel_sd**2
+        self._set_pos_var(c.init.pos_sd)
+        P[9, 9] = P[10, 10] = P[11, 11] = c.imu.gyro_bias_sd**2
+        P[12, 12] = P[13, 13] = P[14, 14] = c.imu.accel_bias_sd**2
+        self._stage = _NAV
+        self.counters["nav_start"] += 1
+
+    def _set_pos_var(self, sd_m: float) -> None:
+        r_m, r_n = radii(self.pos[0])
+        self.P[6, 6] = (sd_m / (r_m + self.pos[2])) ** 2
+        self.P[7, 7] = (sd_m / ((r_n + self.pos[2]) * math.cos(self.pos[0]))) ** 2
+        self.P[8, 8] = sd_m**2
+
+    # ------------------------------------------------------------------ GNSS
+    def _gnss_valid(self, g: GnssSample) -> bool:
+        cnt = self.counters
+        vals = (g.lat_rad, g.lon_rad, g.alt_m, g.vel_n, g.vel_e, g.vel_d)
+        if not all(math.isfinite(v) for v in vals):
+            cnt["gnss_nonfinite"] += 1
+            return False
+        if g.fix_type < FixType.FIX_3D:
+            cnt["gnss_no_fix"] += 1
+            return False
+        if (abs(g.lat_rad) > 0.5 * math.pi or abs(g.lon_rad) > 2.0 * math.pi
+                or abs(g.alt_m) > 1e5 or abs(g.vel_n) > 500.0 or abs(g.vel_e) > 500.0
+                or abs(g.vel_d) > 500.0):
+            cnt["gnss_out_of_range"] += 1
+            return False
+        if self._last_gnss_t_us >= 0 and g.t_us <= self._last_gnss_t_us:
+            cnt["gnss_duplicate" if g.t_us == self._last_gnss_t_us else "gnss_out_of_order"] += 1
+            return False
+        return True
+
+    def _push_gnss(self, g: GnssSample) -> bool:
+        if not self._gnss_valid(g):
+            return False
+        cnt = self.counters
+        self._last_gnss_t_us = g.t_us
+        cnt["gnss"] += 1
+        if self._stage == _WAIT:
+            self._pending_fix = g
+            if self._level_t >= self.cfg.init.level_time:
+                self._start_nav(g)
+                return True
+            return False
+        if self.t_us >= 0 and self.t_us - g.t_us > self.cfg.gnss.max_age * 1e6:
+            cnt["gnss_too_old"] += 1
+            return False
+        c = self.cfg
+        h_sd = g.h_acc_m if g.h_acc_m > 0.0 and math.isfinite(g.h_acc_m) else _DEFAULT_H_ACC
+        v_sd = g.v_acc_m if g.v_acc_m > 0.0 and math.isfinite(g.v_acc_m) else _DEFAULT_V_ACC
+        s_sd = (g.vel_acc_mps if g.vel_acc_mps > 0.0 and math.isfinite(g.vel_acc_mps)
+                else _DEFAULT_VEL_ACC)
+        h_sd = max(h_sd, c.gnss.min_pos_sd)
+        v_sd = max(v_sd, c.gnss.min_pos_sd)
+        s_sd = max(s_sd, c.gnss.min_vel_sd)
+
+        # absurd jumps are refused even with gating off: they are not measurements of us
+        dn = (g.lat_rad - self.pos[0]) * 6.4e6
+        de = (g.lon_rad - self.pos[1]) * 6.4e6 * math.cos(self.pos[0])
+        if dn * dn + de * de > 1e10:  # 100 km
+            cnt["gnss_absurd_jump"] += 1
+            return False
+
+        vel_scale = 1.0
+        if self._mctls is not None:
+            vel_scale = self._mctls_weight(g, s_sd)
+            if vel_scale <= 0.0:
+                cnt["vel_rejected_mctls"] += 1
+
+        if c.gnss.use_position:
+            m = gnss_position.fill(self._H, self._z, self._R, self.mat_nb, self.pos, self._lever,
+                                   g.lat_rad, g.lon_rad, g.alt_m, h_sd, v_sd)
+            self._apply(m, self._gate3, "pos")
+        if c.gnss.use_velocity and vel_scale > 0.0:
+            self._velocity_and_course(g, s_sd / math.sqrt(vel_scale))
+        return True
+
+    def _mctls_weight(self, g: GnssSample, s_sd: float) -> float:
+        """Feed MCTLS; return the variance divisor for this epoch's velocity (0 = skip)."""
+        mc = self._mctls
+        assert mc is not None
+        v = self._vel_ecef
+        if g.vel_ecef_mps is not None:
+            v[0], v[1], v[2] = g.vel_ecef_mps
+        else:
+            mat_ne_into(self._cne, g.lat_rad, g.lon_rad)
+            # C_e^n^T v_n
+            for i in range(3):
+                v[i] = (self._cne[0, i] * g.vel_n + self._cne[1, i] * g.vel_e
+                        + self._cne[2, i] * g.vel_d)
+        ready = mc.push(g.t_us * 1e-6, v, s_sd, g.lat_rad, g.lon_rad)
+        if not ready:
+            return 1.0
+        w = mc.newest_weight
+        if w < self.cfg.mctls.min_weight:
+            return 0.0
+        return w
+
+    def _apply(self, m: int, gate: float, name: str) -> float:
+        nis = kalman.gated_update(self.x, self.P, self._H, self._z, self._R, m,
+                                  gate if self._gating else 0.0,
+                                  self._S, self._L, self._ph, self._w4)
+        if nis >= 0.0:
+            kalman.inject(self.x, self.mat_nb, self.vel_n, self.pos, self.bias_g, self.bias_a,
+                          self._work)
+            self.counters[name + "_accepted"] += 1
+        elif nis == -math.inf:
+            self.counters[name + "_singular"] += 1
+            self.x[:] = 0.0
+        else:
+            self.counters[name + "_rejected"] += 1
+        return nis
+
+    def _course_usable(self, g: GnssSample) -> bool:
+        """Whether heading ~ course now (DESIGN §4); sets :attr:`course_status`."""
+        c = self.cfg
+        if not self._course_enabled:
+            self.course_status = ("disabled: multirotor profile (course is not heading)"
+                                  if c.filter.profile == "multirotor" else
+                                  "disabled: traditional mode" if c.filter.mode == "traditional"
+                                  else "disabled: fixed_wing without crab allowance")
+            return False
+        speed = math.hypot(g.vel_n, g.vel_e)
+        if speed < c.heading.min_speed:
+            self.course_status = "waiting: speed below threshold"
+            return False
+        r = self.rate_b
+        m = self.mat_nb
+        yaw_rate = m[2, 0] * r[0] + m[2, 1] * r[1] + m[2, 2] * r[2]
+        if abs(yaw_rate) > c.heading.max_yaw_rate:
+            self.course_status = "waiting: yaw rate too high"
+            return False
+        if abs(yaw_rate) * speed > c.heading.max_lat_accel:
+            self.course_status = "waiting: lateral acceleration too high"
+            return False
+        # Backwards motion in body x is reversing only at reversing speeds; faster than that
+        # it means our yaw is off by more than 90 degrees, which the course must correct.
+        vx = m[0, 0] * g.vel_n + m[1, 0] * g.vel_e + m[2, 0] * g.vel_d
+        if vx < 0.0 and speed < c.heading.max_reverse_speed:
+            self.course_status = "waiting: reversing"
+            return False
+        self.course_status = "active"
+        return True
+
+    def _velocity_and_course(self, g: GnssSample, s_sd: float) -> None:
+        cnt = self.counters
+        H, z, R = self._H, self._z, self._R
+        use_course = self._course_usable(g)
+        m = gnss_velocity.fill(H, z, R, self.mat_nb, self.vel_n, self.rate_b, self._lever,
+                               g.vel_n, g.vel_e, g.vel_d, s_sd, s_sd)
+        if not use_course:
+            self._apply(m, self._gate3, "vel")
+            return
+        # lever-arm-free GNSS velocity for the course, v_gnss - C (w x l); the velocity
+        # innovation just computed is v_hat + C (w x l) - v_gnss
+        vn_c = g.vel_n - (z[0] - (self.vel_n[0] - g.vel_n))
+        ve_c = g.vel_e - (z[1] - (self.vel_n[1] - g.vel_e))
+        if not self.heading_aligned:
+            self._align_yaw_to_course(vn_c, ve_c, s_sd)
+            return
+        # course alone first: its own gate decides whether it joins the velocity update
+        gnss_heading.course_row(H, z, R, 3, self.mat_nb, vn_c, ve_c, s_sd, self._sd_beta)
+        zc = z[3]
+        sc = H[3, 0] * H[3, 0] * self.P[0, 0] + H[3, 1] * H[3, 1] * self.P[1, 1]
+        sc += 2.0 * H[3, 0] * H[3, 1] * self.P[0, 1] + self.P[2, 2]
+        sc -= 2.0 * (H[3, 0] * self.P[0, 2] + H[3, 1] * self.P[1, 2])
+        sc += s_sd * s_sd / (vn_c * vn_c + ve_c * ve_c) + self._sd_beta**2
+        course_ok = (not self._gating) or zc * zc / sc <= self._gate1
+        if course_ok:
+            nis = self._apply(4, self._gate4, "vel_course")
+            if nis >= 0.0:
+                cnt["course_accepted"] += 1
+                self._course_rejects = 0
+                self.last_course_used_t_us = g.t_us
+                return
+            # the joint block failed: fall back to velocity alone
+            m = gnss_velocity.fill(H, z, R, self.mat_nb, self.vel_n, self.rate_b, self._lever,
+                                   g.vel_n, g.vel_e, g.vel_d, s_sd, s_sd)
+            self._apply(m, self._gate3, "vel")
+            return
+        cnt["course_rejected"] += 1
+        self._course_rejects += 1
+        m = gnss_velocity.fill(H, z, R, self.mat_nb, self.vel_n, self.rate_b, self._lever,
+                               g.vel_n, g.vel_e, g.vel_d, s_sd, s_sd)
+        self._apply(m, self._gate3, "vel")
+        if self._course_rejects >= self.cfg.heading.reset_after:
+            # persistently inconsistent: the yaw is wrong beyond the linear model; reset it
+            self._align_yaw_to_course(vn_c, ve_c, s_sd)
+            cnt["heading_reset"] += 1
+
+    def _align_yaw_to_course(self, vn: float, ve: float, s_sd: float) -> None:
+        """Rotate the attitude about down so yaw equals the course; reset yaw covariance."""
+        _, _, yaw = mat_to_euler(self.mat_nb)
+        chi = math.atan2(ve, vn)
+        d = (yaw - chi + math.pi) % (2.0 * math.pi) - math.pi
+        e = self._work[4]
+        t = self._work[5]
+        exp_into(e, 0.0, 0.0, -d)
+        mul3_into(t, e, self.mat_nb)
+        self.mat_nb[:, :] = t
+        P = self.P
+        P[2, :] = 0.0
+        P[:, 2] = 0.0
+        sd = s_sd / math.hypot(vn, ve)
+        P[2, 2] = sd * sd + self._sd_beta**2 + (1.0 * math.pi / 180.0) ** 2
+        self._course_rejects = 0
+        if not self.heading_aligned:
+            self.counters["heading_aligned_from_course"] += 1
+        self.heading_aligned = True
+
+    # ------------------------------------------------------------------ outputs
+    def solution(self) -> NavSolution:
+        """The current navigation solution (allocates a small frozen object, not arrays)."""
+        r, p, y, qw, qx, qy, qz, sr, sp, sy = attitude_outputs(self.mat_nb, self.P, self._M)
+        v = self.vel_n
+        bg = self.bias_g
+        ba = self.bias_a
+        w = self.rate_b
+        return NavSolution(
+            t_us=self.t_us, quat_nb=(qw, qx, qy, qz), roll_rad=r, pitch_rad=p, yaw_rad=y,
+            lat_rad=float(self.pos[0]), lon_rad=float(self.pos[1]), alt_m=float(self.pos[2]),
+            vel_n=(float(v[0]), float(v[1]), float(v[2])), att_sd_rad=(sr, sp, sy),
+            gyro_bias_rps=(float(bg[0]), float(bg[1]), float(bg[2])),
+            accel_bias_mps2=(float(ba[0]), float(ba[1]), float(ba[2])),
+            heading_aligned=self.heading_aligned,
+            rate_b=(float(w[0]), float(w[1]), float(w[2])))
+
+    def status(self) -> dict[str, object]:
+        """Counters and aiding status for the status topic and logs."""
+        return {
+            "initialized": self.initialized,
+            "heading_aligned": self.heading_aligned,
+            "mode": self.cfg.filter.mode,
+            "robust": self.cfg.filter.robust,
+            "profile": self.cfg.filter.profile,
+            "course_update": self.course_status,
+            "counters": dict(self.counters),
+            "gyro_bias_dph": [float(b) * 180.0 / math.pi * 3600.0 for b in self.bias_g],
+            "accel_bias_mg": [float(b) / 9.80665e-3 for b in self.bias_a],
+            "dov_arcsec": [float(self.dov[0]) * 206264.806, float(self.dov[1]) * 206264.806],
+        }
+
+    def ecef_position(self) -> tuple[float, float, float]:
+        return geodetic_to_ecef(float(self.pos[0]), float(self.pos[1]), float(self.pos[2]))

@@ -1,0 +1,234 @@
+"""Kalman filter kernels on preallocated arrays: propagation, gated update, injection.
+
+Propagation (interval T, F held constant over it)::
+
+    Phi = I + F T + (F T)^2 / 2,    P <- Phi P Phi^T + Qd,    Qd = diag(q) T
+
+Update of a small measurement block ``z = H x + v``, ``v ~ N(0, R)`` (m <= 4): the
+normalised innovation squared ``z^T S^-1 z`` (S = H P H^T + R) is gated first; an accepted
+block is whitened with the Cholesky factor of R (so correlated components, such as GNSS
+course and velocity, are handled exactly) and applied as m sequential scalar updates in the
+symmetric rank-one form, followed by a symmetrisation.  Nothing here allocates.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from navd.core._jit import jit
+from navd.core.errors import build_f
+from navd.core.rotation import exp_into, mul3_into, orthonormalize
+from navd.core.strapdown import strapdown_step
+
+Arr = npt.NDArray[np.float64]
+N = 15
+
+
+@jit
+def propagate_cov(P: Arr, F: Arr, q: Arr, T: float, A: Arr, B: Arr) -> None:
+    """P <- Phi P Phi^T + diag(q) T with Phi = I + FT + (FT)^2/2.  A, B: (15,15) scratch."""
+    n = P.shape[0]
+    # A = F T ; B = I + A + A A / 2   (skip zeros: F is ~70 % zeros)
+    for i in range(n):
+        for j in range(n):
+            A[i, j] = F[i, j] * T
+    for i in range(n):
+        for j in range(n):
+            B[i, j] = A[i, j]
+        for k in range(n):
+            a = A[i, k]
+            if a != 0.0:
+                for j in range(n):
+                    B[i, j] += 0.5 * a * A[k, j]
+        B[i, i] += 1.0
+    # A <- Phi P
+    for i in range(n):
+        for j in range(n):
+            A[i, j] = 0.0
+        for k in range(n):
+            b = B[i, k]
+            if b != 0.0:
+                for j in range(n):
+                    A[i, j] += b * P[k, j]
+    # P <- (Phi P) Phi^T + Qd, symmetric by construction of the upper triangle
+    for i in range(n):
+        for j in range(i, n):
+            s = 0.0
+            for k in range(n):
+                b = B[j, k]
+                if b != 0.0:
+                    s += A[i, k] * b
+            P[i, j] = s
+            P[j, i] = s
+        P[i, i] += q[i] * T
+
+
+@jit
+def gated_update(x: Arr, P: Arr, H: Arr, z: Arr, R: Arr, m: int, gate: float,
+                 S: Arr, L: Arr, ph: Arr, w: Arr) -> float:
+    """Gate and apply a measurement block of size m in place.
+
+    Args:
+        x: error state (15,), updated.
+        P: covariance (15, 15), updated.
+        H: (4, 15) rows 0..m-1 used.  Rows are overwritten (whitened) on accept.
+        z: (4,) innovation (computed - measured), first m used; overwritten on accept.
+        R: (4, 4) measurement covariance, top-left m x m used; overwritten.
+        gate: chi-square threshold for m degrees of freedom (<= 0 disables the gate).
+        S, L: (4, 4) scratch.  ph: (15,) scratch.  w: (4,) scratch.
+    Returns:
+        The normalised innovation squared; negative (-NIS) when the gate rejected it, and
+        -inf when S was not positive definite (nothing applied).
+    """
+    n = x.shape[0]
+    # S = H P H^T + R
+    for a in range(m):
+        for i in range(n):
+            s = 0.0
+            for k in range(n):
+                s += P[i, k] * H[a, k]
+            ph[i] = s
+        for b in range(m):
+            s = 0.0
+            for i in range(n):
+                s += H[b, i] * ph[i]
+            S[a, b] = s + R[a, b]
+    # Cholesky of S -> NIS
+    for i in range(m):
+        for j in range(i + 1):
+            s = S[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if s <= 0.0:
+                    return -math.inf
+                L[i, i] = math.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    nis = 0.0
+    for i in range(m):
+        s = z[i]
+        for k in range(i):
+            s -= L[i, k] * w[k]
+        w[i] = s / L[i, i]
+        nis += w[i] * w[i]
+    if not math.isfinite(nis):
+        return -math.inf
+    if gate > 0.0 and nis > gate:
+        return -nis
+    # whiten with chol(R): R = Lr Lr^T;  z' = Lr^-1 z, H' = Lr^-1 H
+    for i in range(m):
+        for j in range(i + 1):
+            s = R[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if s <= 0.0:
+                    return -math.inf
+                L[i, i] = math.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    for i in range(m):
+        for k in range(i):
+            z[i] -= L[i, k] * z[k]
+            for c in range(n):
+                H[i, c] -= L[i, k] * H[k, c]
+        z[i] /= L[i, i]
+        for c in range(n):
+            H[i, c] /= L[i, i]
+    # sequential unit-variance scalar updates
+    for a in range(m):
+        for i in range(n):
+            s = 0.0
+            for k in range(n):
+                hk = H[a, k]
+                if hk != 0.0:
+                    s += P[i, k] * hk
+            ph[i] = s
+        s = 1.0
+        r = z[a]
+        for k in range(n):
+            s += H[a, k] * ph[k]
+            r -= H[a, k] * x[k]
+        inv = 1.0 / s
+        for i in range(n):
+            x[i] += ph[i] * inv * r
+        for i in range(n):
+            ki = ph[i] * inv
+            for j in range(i, n):
+                v = P[i, j] - ki * ph[j]
+                P[i, j] = v
+                P[j, i] = v
+    return nis
+
+
+@jit
+def inject(x: Arr, mat_nb: Arr, vel_n: Arr, pos: Arr, bg: Arr, ba: Arr, work: Arr) -> None:
+    """Fold the error state into the nominal state and zero it (conventions in navd)."""
+    e = work[4]
+    t = work[5]
+    exp_into(e, x[0], x[1], x[2])
+    mul3_into(t, e, mat_nb)
+    for i in range(3):
+        for j in range(3):
+            mat_nb[i, j] = t[i, j]
+        vel_n[i] -= x[3 + i]
+        pos[i] -= x[6 + i]
+        bg[i] += x[9 + i]
+        ba[i] += x[12 + i]
+    for i in range(x.shape[0]):
+        x[i] = 0.0
+
+
+@jit
+def imu_step(mat_nb: Arr, vel_n: Arr, pos: Arr, dov: Arr, bg: Arr, ba: Arr,
+             inc: Arr, prev_inc: Arr, acc: Arr,
+             dtx: float, dty: float, dtz: float, dvx: float, dvy: float, dvz: float,
+             dt: float, coning: bool, cov_interval: float,
+             P: Arr, F: Arr, q: Arr, A: Arr, B: Arr, work: Arr, rate: Arr) -> bool:
+    """One IMU sample: bias compensation, strapdown, and covariance propagation when due.
+
+    ``acc`` (8,) accumulates (sum dv_b xyz, sum dt, step count, -, -, -) between covariance
+    propagations so F uses the interval's mean specific force.  ``rate`` (3,) receives the
+    compensated body rate (rad/s).  Returns True when P was propagated.
+    """
+    inc[0] = dtx - bg[0] * dt
+    inc[1] = dty - bg[1] * dt
+    inc[2] = dtz - bg[2] * dt
+    inc[3] = dvx - ba[0] * dt
+    inc[4] = dvy - ba[1] * dt
+    inc[5] = dvz - ba[2] * dt
+    rate[0] = inc[0] / dt
+    rate[1] = inc[1] / dt
+    rate[2] = inc[2] / dt
+    strapdown_step(mat_nb, vel_n, pos, dov, inc, prev_inc, dt, coning, work)
+    for i in range(6):
+        prev_inc[i] = inc[i]
+    acc[0] += inc[3]
+    acc[1] += inc[4]
+    acc[2] += inc[5]
+    acc[3] += dt
+    acc[4] += 1.0
+    if acc[4] >= 1000.0:
+        # keep C orthonormal against round-off drift (cheap, every ~1000 samples)
+        orthonormalize(mat_nb, work[6], work[7])
+        acc[4] = 0.0
+    if acc[3] + 0.5 * dt < cov_interval:
+        return False
+    T = acc[3]
+    f_n = work[0, 0]
+    fx = acc[0] / T
+    fy = acc[1] / T
+    fz = acc[2] / T
+    for i in range(3):
+        f_n[i] = mat_nb[i, 0] * fx + mat_nb[i, 1] * fy + mat_nb[i, 2] * fz
+    build_f(F, mat_nb, vel_n, pos, f_n)
+    propagate_cov(P, F, q, T, A, B)
+    acc[0] = 0.0
+    acc[1] = 0.0
+    acc[2] = 0.0
+    acc[3] = 0.0
+    return True

@@ -1,0 +1,201 @@
+"""What every input adapter shares: plausibility limits, the rate -> increment conversion,
+and the reject path (count + rate-limited log line).
+
+Rate-type IMU messages (MAVLink HIGHRES_IMU / SCALED_IMU / RAW_IMU, DroneCAN RawIMU without
+integrals) carry a point sample of angular rate and specific force.  The estimator wants
+increments, so each sample is held over the interval back to the previous sample of the same
+source (zero-order hold): ``dtheta = omega * dt``, ``dv = f * dt``, ``dt`` from consecutive
+sensor time stamps.  The first sample after start, a gap or a clock jump has no interval: it
+is either given the nominal one from config or dropped (counted either way).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Hashable
+from dataclasses import dataclass
+
+from navd.diag import Counters, RateLimitedLog
+from navd.types import GnssSample, ImuSample
+
+G0_MPS2 = 9.80665  # standard gravity, the "g" of mG on the wire (MAVLink, ArduPilot, PX4)
+
+Sample = ImuSample | GnssSample
+SampleCallback = Callable[[Sample], None]
+
+
+def monotonic_us() -> int:
+    """Local receive clock, integer microseconds (never jumps with wall-clock changes)."""
+    return time.monotonic_ns() // 1000
+
+
+@dataclass(frozen=True, slots=True)
+class Limits:
+    """Values beyond these are wire garbage or a broken sensor, not motion.
+
+    Defaults sit above any MEMS full scale in use (±32 g, ±2000 °/s = 34.9 rad/s is the
+    largest common gyro range) so a saturated but honest sensor still passes.
+    """
+
+    max_accel_mps2: float = 50.0 * G0_MPS2
+    max_gyro_rps: float = 35.0
+    min_alt_m: float = -2000.0
+    max_alt_m: float = 100_000.0
+    max_speed_mps: float = 1000.0
+
+
+class Rejector:
+    """Counts a rejection under ``reason`` and logs it, at most once per interval per reason."""
+
+    __slots__ = ("counters", "log", "prefix")
+
+    def __init__(self, counters: Counters, log: RateLimitedLog, prefix: str) -> None:
+        self.counters = counters
+        self.log = log
+        self.prefix = prefix
+
+    @classmethod
+    def create(
+        cls,
+        logger_name: str,
+        prefix: str,
+        counters: Counters | None = None,
+        log: RateLimitedLog | None = None,
+        log_interval_s: float = 5.0,
+    ) -> Rejector:
+        c = counters if counters is not None else Counters()
+        lg = log if log is not None else RateLimitedLog(logging.getLogger(logger_name), log_interval_s)
+        return cls(c, lg, prefix)
+
+    def __call__(self, reason: str, detail: str = "", *args: object) -> None:
+        self.counters.inc(reason)
+        if detail:
+            self.log.warn(reason, f"{self.prefix}: rejected ({reason}): {detail}", *args)
+        else:
+            self.log.warn(reason, f"{self.prefix}: rejected ({reason})")
+
+
+def all_finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+def imu_reject_reason(
+    gx: float, gy: float, gz: float, ax: float, ay: float, az: float, limits: Limits
+) -> str | None:
+    """Reason to drop one IMU point sample (rad/s, m/s^2), or None if plausible."""
+    if not all_finite(gx, gy, gz, ax, ay, az):
+        return "imu_nonfinite"
+    if gx * gx + gy * gy + gz * gz > limits.max_gyro_rps**2:
+        return "imu_absurd_gyro"
+    if ax * ax + ay * ay + az * az > limits.max_accel_mps2**2:
+        return "imu_absurd_accel"
+    return None
+
+
+def gnss_reject_reason(
+    lat_deg: float,
+    lon_deg: float,
+    alt_m: float,
+    vel_ned: tuple[float, float, float],
+    limits: Limits,
+) -> str | None:
+    """Reason to drop one GNSS fix, or None.
+
+    Velocity components may be NaN on purpose (the message does not carry them); only
+    finite ones are range-checked.  Position must be finite.
+    """
+    if not all_finite(lat_deg, lon_deg, alt_m):
+        return "gnss_nonfinite"
+    if not (-90.0 <= lat_deg <= 90.0 and -180.0 <= lon_deg <= 180.0):
+        return "gnss_latlon_range"
+    if not (limits.min_alt_m <= alt_m <= limits.max_alt_m):
+        return "gnss_absurd_alt"
+    sq = sum(v * v for v in vel_ned if math.isfinite(v))
+    if sq > limits.max_speed_mps**2 or any(math.isinf(v) for v in vel_ned):
+        return "gnss_absurd_velocity"
+    return None
+
+
+class RateIntegrator:
+    """Turns point rate samples into increments, one time line per source key.
+
+    ``max_gap_us``: a larger interval is a gap (lost samples, sensor restart), not one long
+    hold; integrating a rate over it would inject a large false increment.
+    """
+
+    __slots__ = ("_last_t_us", "_max_gap_us", "_nominal_dt_us", "_reject")
+
+    def __init__(
+        self,
+        reject: Rejector,
+        nominal_dt_us: int | None,
+        max_gap_us: int,
+    ) -> None:
+        if nominal_dt_us is not None and nominal_dt_us <= 0:
+            raise ValueError("nominal_dt_us must be > 0")
+        self._reject = reject
+        self._nominal_dt_us = nominal_dt_us
+        self._max_gap_us = max_gap_us
+        self._last_t_us: dict[Hashable, int] = {}
+
+    def reset(self) -> None:
+        self._last_t_us.clear()
+
+    def note_time(self, key: Hashable, t_us: int) -> None:
+        """Record a sample that arrived already integrated, so a later rate sample of the same
+        source gets the right interval."""
+        self._last_t_us[key] = t_us
+
+    def interval_us(self, key: Hashable, t_us: int) -> int | None:
+        """Interval ending at ``t_us`` for this source, or None if the sample is to be dropped.
+
+        Advances the source's time line except for duplicates.
+        """
+        last = self._last_t_us.get(key)
+        if last is None:
+            self._last_t_us[key] = t_us
+            return self._restart("imu_first_sample", "first sample of source %r", key)
+        dt_us = t_us - last
+        if dt_us == 0:
+            self._reject("imu_duplicate_time", "source %r repeated t_us=%d", key, t_us)
+            return None
+        self._last_t_us[key] = t_us
+        if dt_us < 0:
+            return self._restart(
+                "imu_time_backwards", "source %r time went back by %d us", key, -dt_us
+            )
+        if dt_us > self._max_gap_us:
+            return self._restart("imu_gap", "source %r gap of %d us", key, dt_us)
+        return dt_us
+
+    def _restart(self, reason: str, detail: str, *args: object) -> int | None:
+        # Counted even when a nominal interval rescues the sample: a restart is worth knowing.
+        self._reject.counters.inc(reason)
+        if self._nominal_dt_us is not None:
+            return self._nominal_dt_us
+        self._reject.log.warn(reason, f"{self._reject.prefix}: dropped IMU sample: {detail}", *args)
+        return None
+
+    def push(
+        self,
+        key: Hashable,
+        t_us: int,
+        gyro_rps: tuple[float, float, float],
+        accel_mps2: tuple[float, float, float],
+    ) -> ImuSample | None:
+        dt_us = self.interval_us(key, t_us)
+        if dt_us is None:
+            return None
+        dt_s = dt_us * 1e-6
+        return ImuSample(
+            t_us=t_us,
+            dt_us=dt_us,
+            dtheta_x=gyro_rps[0] * dt_s,
+            dtheta_y=gyro_rps[1] * dt_s,
+            dtheta_z=gyro_rps[2] * dt_s,
+            dvel_x=accel_mps2[0] * dt_s,
+            dvel_y=accel_mps2[1] * dt_s,
+            dvel_z=accel_mps2[2] * dt_s,
+        )
