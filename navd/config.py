@@ -119,8 +119,8 @@ def _section(cls: type, section: str, table: dict[str, Any]) -> Any:
                 for n, f in spec.items())
             raise ConfigError(f"[{section}] unknown key {key!r}; expected one of: {expected}")
         name, unit, kind = match
-        kind_t = {"float": float, "bool": bool, "str": str, "int": int,
-                  "tuple": tuple}.get(kind, kind) if isinstance(kind, str) else kind
+        kind_t: type = {"float": float, "bool": bool, "str": str, "int": int,
+                        "tuple": tuple}[str(kind)]
         kwargs[name] = _convert(section, key, value, unit, kind_t)
     return cls(**kwargs)
 

@@ -23,8 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from navd.config import EstimatorConfig
-from navd.core import kalman
-from navd.core.aiding import gnss_heading, gnss_position, gnss_velocity
+from navd.core import state as st
 from navd.core.chi2 import chi2_quantile
 from navd.core.earth import geodetic_to_ecef, mat_ne_into, radii
 from navd.core.output import attitude_outputs
@@ -63,32 +62,28 @@ class Estimator:
     def __init__(self, config: EstimatorConfig | None = None) -> None:
         self.cfg = config or EstimatorConfig()
         c = self.cfg
-        self.mat_nb = np.eye(3)
-        self.vel_n = np.zeros(3)
-        self.pos = np.zeros(3)
-        self.bias_g = np.zeros(3)
-        self.bias_a = np.zeros(3)
-        self.dov = np.zeros(3)
-        self.P = np.zeros((15, 15))
-        self.x = np.zeros(15)
-        self._F = np.zeros((15, 15))
-        self._A = np.zeros((15, 15))
-        self._B = np.zeros((15, 15))
-        self._q = np.zeros(15)
-        self._work = np.zeros((8, 3, 3))
-        self._inc = np.zeros(6)
-        self._prev_inc = np.zeros(6)
-        self._acc = np.zeros(8)
-        self.rate_b = np.zeros(3)
-        self._H = np.zeros((4, 15))
-        self._z = np.zeros(4)
-        self._R = np.zeros((4, 4))
-        self._S = np.zeros((4, 4))
-        self._L = np.zeros((4, 4))
-        self._ph = np.zeros(15)
-        self._w4 = np.zeros(4)
-        self._M = np.zeros((3, 3))
-        self._lever = np.array(c.gnss.lever_arm, dtype=float)
+        self._buf = np.zeros(st.SIZE)
+        v = st.StateViews(self._buf)
+        self._v = v
+        self.mat_nb = v.mat_nb
+        self.vel_n = v.vel_n
+        self.pos = v.pos
+        self.bias_g = v.bias_g
+        self.bias_a = v.bias_a
+        self.dov = v.dov
+        self.P = v.P
+        self.x = v.x
+        self.rate_b = v.rate_b
+        self._q = v.q
+        self._work = v.work
+        self._prev_inc = v.prev_inc
+        self._acc = v.acc
+        self._H = v.H
+        self._z = v.z
+        self._R = v.R
+        self._M = v.M
+        self.mat_nb[:, :] = np.eye(3)
+        v.lever_b[:] = c.gnss.lever_arm
         self._cne = np.zeros((3, 3))
         self._vel_ecef = np.zeros(3)
         self._level_sum = np.zeros(6)
@@ -104,6 +99,8 @@ class Estimator:
         self._gate3 = chi2_quantile(p, 3)
         self._gate4 = chi2_quantile(p, 4)
         self._gating = c.filter.robust != "none"
+        self._coning = c.filter.coning
+        self._cov_interval = c.filter.cov_interval
         self._mctls: Mctls | None = None
         if c.filter.robust == "mctls":
             from navd.core.aiding.mctls import Mctls as _Mctls
@@ -197,11 +194,8 @@ class Estimator:
         if self._stage == _WAIT:
             self._level(s, dt)
             return False
-        kalman.imu_step(self.mat_nb, self.vel_n, self.pos, self.dov, self.bias_g, self.bias_a,
-                        self._inc, self._prev_inc, self._acc,
-                        s.dtheta_x, s.dtheta_y, s.dtheta_z, s.dvel_x, s.dvel_y, s.dvel_z,
-                        dt, self.cfg.filter.coning, self.cfg.filter.cov_interval,
-                        self.P, self._F, self._q, self._A, self._B, self._work, self.rate_b)
+        st.imu_step(self._buf, s.dtheta_x, s.dtheta_y, s.dtheta_z, s.dvel_x, s.dvel_y,
+                    s.dvel_z, dt, self._coning, self._cov_interval)
         return True
 
     def _level(self, s: ImuSample, dt: float) -> None:
@@ -333,8 +327,7 @@ class Estimator:
                 cnt["vel_rejected_mctls"] += 1
 
         if c.gnss.use_position:
-            m = gnss_position.fill(self._H, self._z, self._R, self.mat_nb, self.pos, self._lever,
-                                   g.lat_rad, g.lon_rad, g.alt_m, h_sd, v_sd)
+            m = st.fill_position(self._buf, g.lat_rad, g.lon_rad, g.alt_m, h_sd, v_sd)
             self._apply(m, self._gate3, "pos")
         if c.gnss.use_velocity and vel_scale > 0.0:
             self._velocity_and_course(g, s_sd / math.sqrt(vel_scale))
@@ -362,12 +355,9 @@ class Estimator:
         return w
 
     def _apply(self, m: int, gate: float, name: str) -> float:
-        nis = kalman.gated_update(self.x, self.P, self._H, self._z, self._R, m,
-                                  gate if self._gating else 0.0,
-                                  self._S, self._L, self._ph, self._w4)
+        nis = st.update(self._buf, m, gate if self._gating else 0.0)
         if nis >= 0.0:
-            kalman.inject(self.x, self.mat_nb, self.vel_n, self.pos, self.bias_g, self.bias_a,
-                          self._work)
+            st.inject(self._buf)
             self.counters[name + "_accepted"] += 1
         elif nis == -math.inf:
             self.counters[name + "_singular"] += 1
@@ -411,8 +401,7 @@ class Estimator:
         cnt = self.counters
         H, z, R = self._H, self._z, self._R
         use_course = self._course_usable(g)
-        m = gnss_velocity.fill(H, z, R, self.mat_nb, self.vel_n, self.rate_b, self._lever,
-                               g.vel_n, g.vel_e, g.vel_d, s_sd, s_sd)
+        m = st.fill_velocity(self._buf, g.vel_n, g.vel_e, g.vel_d, s_sd, s_sd)
         if not use_course:
             self._apply(m, self._gate3, "vel")
             return
@@ -424,7 +413,7 @@ class Estimator:
             self._align_yaw_to_course(vn_c, ve_c, s_sd)
             return
         # course alone first: its own gate decides whether it joins the velocity update
-        gnss_heading.course_row(H, z, R, 3, self.mat_nb, vn_c, ve_c, s_sd, self._sd_beta)
+        st.course_row(self._buf, 3, vn_c, ve_c, s_sd, self._sd_beta)
         zc = z[3]
         sc = H[3, 0] * H[3, 0] * self.P[0, 0] + H[3, 1] * H[3, 1] * self.P[1, 1]
         sc += 2.0 * H[3, 0] * H[3, 1] * self.P[0, 1] + self.P[2, 2]
@@ -439,14 +428,12 @@ class Estimator:
                 self.last_course_used_t_us = g.t_us
                 return
             # the joint block failed: fall back to velocity alone
-            m = gnss_velocity.fill(H, z, R, self.mat_nb, self.vel_n, self.rate_b, self._lever,
-                                   g.vel_n, g.vel_e, g.vel_d, s_sd, s_sd)
+            m = st.fill_velocity(self._buf, g.vel_n, g.vel_e, g.vel_d, s_sd, s_sd)
             self._apply(m, self._gate3, "vel")
             return
         cnt["course_rejected"] += 1
         self._course_rejects += 1
-        m = gnss_velocity.fill(H, z, R, self.mat_nb, self.vel_n, self.rate_b, self._lever,
-                               g.vel_n, g.vel_e, g.vel_d, s_sd, s_sd)
+        m = st.fill_velocity(self._buf, g.vel_n, g.vel_e, g.vel_d, s_sd, s_sd)
         self._apply(m, self._gate3, "vel")
         if self._course_rejects >= self.cfg.heading.reset_after:
             # persistently inconsistent: the yaw is wrong beyond the linear model; reset it

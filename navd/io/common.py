@@ -66,8 +66,9 @@ class Rejector:
         log_interval_s: float = 5.0,
     ) -> Rejector:
         c = counters if counters is not None else Counters()
-        lg = log if log is not None else RateLimitedLog(logging.getLogger(logger_name), log_interval_s)
-        return cls(c, lg, prefix)
+        if log is None:
+            log = RateLimitedLog(logging.getLogger(logger_name), log_interval_s)
+        return cls(c, log, prefix)
 
     def __call__(self, reason: str, detail: str = "", *args: object) -> None:
         self.counters.inc(reason)
@@ -173,10 +174,11 @@ class RateIntegrator:
     def _restart(self, reason: str, detail: str, *args: object) -> int | None:
         # Counted even when a nominal interval rescues the sample: a restart is worth knowing.
         self._reject.counters.inc(reason)
-        if self._nominal_dt_us is not None:
-            return self._nominal_dt_us
-        self._reject.log.warn(reason, f"{self._reject.prefix}: dropped IMU sample: {detail}", *args)
-        return None
+        rescued = self._nominal_dt_us is not None
+        if reason != "imu_first_sample":
+            what = "assumed nominal interval" if rescued else "dropped IMU sample"
+            self._reject.log.warn(reason, f"{self._reject.prefix}: {what}: {detail}", *args)
+        return self._nominal_dt_us
 
     def push(
         self,

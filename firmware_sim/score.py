@@ -1,0 +1,114 @@
+"""Scoring an estimator against simulator truth (used by tests and benchmarks).
+
+The estimator sees only the sensor samples; truth is looked up by time stamp afterwards.
+Errors follow navd's conventions (computed minus true): attitude error phi from
+``C_hat = Exp(-phi) C``, Euler errors wrapped to (-180, 180] degrees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from firmware_sim.run import SimRun
+from navd.config import EstimatorConfig
+from navd.core.earth import radii
+from navd.core.estimator import Estimator
+from navd.core.rotation import log_so3, mat_to_euler
+from navd.types import GnssSample, ImuSample
+
+Arr = npt.NDArray[np.float64]
+R2D = 180.0 / math.pi
+
+
+@dataclass
+class Score:
+    """Errors sampled at a fixed rate after navigation started.
+
+    Attributes:
+        t_s: (K,) time, s.
+        euler_err_deg: (K, 3) roll, pitch, yaw error, deg.
+        euler_sd_deg: (K, 3) the filter's 1-sigma of the same, deg.
+        vel_err: (K, 3) NED velocity error, m/s.
+        pos_err: (K, 3) NED position error, m.
+        nees_att: (K,) phi^T P_att^-1 phi (3 dof).
+        nees_vel: (K,) dv^T P_vel^-1 dv (3 dof).
+        aligned: (K,) heading aligned flag.
+        counters: the estimator's counters at the end.
+    """
+
+    t_s: Arr
+    euler_err_deg: Arr
+    euler_sd_deg: Arr
+    vel_err: Arr
+    pos_err: Arr
+    nees_att: Arr
+    nees_vel: Arr
+    aligned: npt.NDArray[np.bool_]
+    counters: dict[str, int] = field(default_factory=dict)
+    course_status: str = ""
+
+    def rmse(self, after_s: float = 0.0) -> dict[str, float]:
+        """RMS of each error after ``after_s`` seconds (degrees, m/s, m)."""
+        m = self.t_s >= after_s
+        e = self.euler_err_deg[m]
+        return {
+            "roll_rmse_deg": float(np.sqrt(np.mean(e[:, 0] ** 2))),
+            "pitch_rmse_deg": float(np.sqrt(np.mean(e[:, 1] ** 2))),
+            "heading_rmse_deg": float(np.sqrt(np.mean(e[:, 2] ** 2))),
+            "vel_h_rmse_mps": float(np.sqrt(np.mean(np.sum(self.vel_err[m, :2] ** 2, 1)))),
+            "pos_h_rmse_m": float(np.sqrt(np.mean(np.sum(self.pos_err[m, :2] ** 2, 1)))),
+        }
+
+
+def initial_heading_config(run: SimRun, yaw_error_deg: float) -> list[str]:
+    """Config overrides that start the filter with a heading off by ``yaw_error_deg``."""
+    yaw0 = float(run.truth_euler[0, 2]) * R2D + yaw_error_deg
+    return ["init.heading_source=config", f"init.heading_deg={yaw0}",
+            f"init.heading_sd_deg={max(abs(yaw_error_deg), 1.0)}"]
+
+
+def score_run(run: SimRun, cfg: EstimatorConfig, rate_hz: float = 10.0,
+              est: Estimator | None = None) -> Score:
+    """Push every sample of ``run`` through an estimator and sample its errors."""
+    e = est if est is not None else Estimator(cfg)
+    t0 = int(run.truth_t_us[0])
+    dt_truth = int(run.truth_t_us[1] - run.truth_t_us[0])
+    period = int(round(1e6 / rate_hz))
+    rows: list[tuple[float, ...]] = []
+    phi = np.zeros(3)
+    for s in run.samples():
+        e.push(s)
+        if not (isinstance(s, ImuSample) and e.initialized) or (s.t_us - t0) % period:
+            continue
+        k = (s.t_us - t0) // dt_truth
+        c_true = run.truth_mat_nb[k]
+        sol = e.solution()
+        dlt = np.array(mat_to_euler(e.mat_nb)) - run.truth_euler[k]
+        dlt = (dlt + math.pi) % (2 * math.pi) - math.pi
+        # phi = -Log(C_hat C^T)
+        phi[:] = log_so3(e.mat_nb @ c_true.T)
+        phi *= -1.0
+        patt = e.P[0:3, 0:3]
+        pvel = e.P[3:6, 3:6]
+        dv = e.vel_n - run.truth_vel_n[k]
+        r_m, r_n = radii(float(run.truth_pos[k, 0]))
+        h = float(run.truth_pos[k, 2])
+        dp = e.pos - run.truth_pos[k]
+        dpn = (dp[0] * (r_m + h), dp[1] * (r_n + h) * math.cos(run.truth_pos[k, 0]), -dp[2])
+        rows.append((s.t_us * 1e-6, *(dlt * R2D), *(np.array(sol.att_sd_rad) * R2D), *dv,
+                     *dpn, float(phi @ np.linalg.solve(patt, phi)),
+                     float(dv @ np.linalg.solve(pvel, dv)), float(sol.heading_aligned)))
+    a = np.array(rows) if rows else np.zeros((0, 18))
+    return Score(t_s=a[:, 0], euler_err_deg=a[:, 1:4], euler_sd_deg=a[:, 4:7],
+                 vel_err=a[:, 7:10], pos_err=a[:, 10:13], nees_att=a[:, 13],
+                 nees_vel=a[:, 14], aligned=a[:, 15] > 0.5, counters=dict(e.counters),
+                 course_status=e.course_status)
+
+
+def gnss_only(run: SimRun) -> list[GnssSample]:
+    """The GNSS samples of a run (convenience for tests)."""
+    return list(run.gnss_samples())

@@ -1,0 +1,127 @@
+"""The estimator's memory: one float64 buffer carved into named views at fixed offsets.
+
+Every array the filter touches lives here, allocated once.  Python holds numpy views of
+the same memory (``StateViews``); compiled kernels receive only the buffer and slice it
+themselves.  This is not just tidiness: numba boxes every array argument on each call,
+and a 25-argument kernel call leaves ~1 KB of transient Python garbage where a
+one-buffer call leaves ~80 B, which is what keeps a steady-state step allocation-free.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from navd.core import kalman
+from navd.core._jit import jit
+from navd.core.aiding import gnss_heading, gnss_position, gnss_velocity
+
+Arr = npt.NDArray[np.float64]
+
+MAT = 0  # C_b^n (3, 3)
+VEL = 9  # vel_n (3,) m/s
+POS = 12  # lat rad, lon rad, alt m
+DOV = 15  # xi rad, eta rad, dg_D m/s^2
+BG = 18  # gyro bias rad/s, body
+BA = 21  # accel bias m/s^2, body
+INC = 24  # compensated increments (6,)
+PREV = 30  # previous increments (6,)
+ACC = 36  # propagation accumulators (8,)
+RATE = 44  # compensated body rate (3,) rad/s
+LEVER = 47  # GNSS lever arm, body FRD (3,) m
+Q = 50  # continuous noise densities (15,)
+X = 65  # error state (15,)
+P = 80  # covariance (15, 15)
+F = 305  # error dynamics (15, 15)
+A = 530  # scratch (15, 15)
+B = 755  # scratch (15, 15)
+WORK = 980  # scratch (8, 3, 3)
+H = 1052  # measurement rows (4, 15)
+Z = 1112  # innovations (4,)
+R = 1116  # measurement covariance (4, 4)
+S = 1132  # scratch (4, 4)
+L = 1148  # scratch (4, 4)
+PH = 1164  # scratch (15,)
+W4 = 1179  # scratch (4,)
+M3 = 1183  # scratch (3, 3)
+SIZE = 1192
+
+
+class StateViews:
+    """Named numpy views into the buffer (see the offsets above for shapes and units)."""
+
+    def __init__(self, buf: Arr) -> None:
+        assert buf.shape == (SIZE,)
+        self.buf = buf
+        self.mat_nb = buf[MAT:MAT + 9].reshape(3, 3)
+        self.vel_n = buf[VEL:VEL + 3]
+        self.pos = buf[POS:POS + 3]
+        self.dov = buf[DOV:DOV + 3]
+        self.bias_g = buf[BG:BG + 3]
+        self.bias_a = buf[BA:BA + 3]
+        self.prev_inc = buf[PREV:PREV + 6]
+        self.acc = buf[ACC:ACC + 8]
+        self.rate_b = buf[RATE:RATE + 3]
+        self.lever_b = buf[LEVER:LEVER + 3]
+        self.q = buf[Q:Q + 15]
+        self.x = buf[X:X + 15]
+        self.P = buf[P:P + 225].reshape(15, 15)
+        self.work = buf[WORK:WORK + 72].reshape(8, 3, 3)
+        self.H = buf[H:H + 60].reshape(4, 15)
+        self.z = buf[Z:Z + 4]
+        self.R = buf[R:R + 16].reshape(4, 4)
+        self.M = buf[M3:M3 + 9].reshape(3, 3)
+
+
+@jit
+def imu_step(buf: Arr, dtx: float, dty: float, dtz: float, dvx: float, dvy: float,
+             dvz: float, dt: float, coning: bool, cov_interval: float) -> bool:
+    """:func:`navd.core.kalman.imu_step` on the buffer."""
+    return kalman.imu_step(
+        buf[MAT:MAT + 9].reshape((3, 3)), buf[VEL:VEL + 3], buf[POS:POS + 3],
+        buf[DOV:DOV + 3], buf[BG:BG + 3], buf[BA:BA + 3], buf[INC:INC + 6],
+        buf[PREV:PREV + 6], buf[ACC:ACC + 8], dtx, dty, dtz, dvx, dvy, dvz, dt, coning,
+        cov_interval, buf[P:P + 225].reshape((15, 15)), buf[F:F + 225].reshape((15, 15)),
+        buf[Q:Q + 15], buf[A:A + 225].reshape((15, 15)), buf[B:B + 225].reshape((15, 15)),
+        buf[WORK:WORK + 72].reshape((8, 3, 3)), buf[RATE:RATE + 3])
+
+
+@jit
+def update(buf: Arr, m: int, gate: float) -> float:
+    """:func:`navd.core.kalman.gated_update` of the block in H, z, R (first m rows)."""
+    return kalman.gated_update(
+        buf[X:X + 15], buf[P:P + 225].reshape((15, 15)), buf[H:H + 60].reshape((4, 15)),
+        buf[Z:Z + 4], buf[R:R + 16].reshape((4, 4)), m, gate,
+        buf[S:S + 16].reshape((4, 4)), buf[L:L + 16].reshape((4, 4)), buf[PH:PH + 15],
+        buf[W4:W4 + 4])
+
+
+@jit
+def inject(buf: Arr) -> None:
+    """:func:`navd.core.kalman.inject` of the error state into the nominal state."""
+    kalman.inject(buf[X:X + 15], buf[MAT:MAT + 9].reshape((3, 3)), buf[VEL:VEL + 3],
+                  buf[POS:POS + 3], buf[BG:BG + 3], buf[BA:BA + 3],
+                  buf[WORK:WORK + 72].reshape((8, 3, 3)))
+
+
+@jit
+def fill_position(buf: Arr, lat: float, lon: float, alt: float, sd_h: float,
+                  sd_v: float) -> int:
+    return gnss_position.fill(buf[H:H + 60].reshape((4, 15)), buf[Z:Z + 4],
+                              buf[R:R + 16].reshape((4, 4)), buf[MAT:MAT + 9].reshape((3, 3)),
+                              buf[POS:POS + 3], buf[LEVER:LEVER + 3], lat, lon, alt, sd_h, sd_v)
+
+
+@jit
+def fill_velocity(buf: Arr, vn: float, ve: float, vd: float, sd_h: float, sd_v: float) -> int:
+    return gnss_velocity.fill(buf[H:H + 60].reshape((4, 15)), buf[Z:Z + 4],
+                              buf[R:R + 16].reshape((4, 4)), buf[MAT:MAT + 9].reshape((3, 3)),
+                              buf[VEL:VEL + 3], buf[RATE:RATE + 3], buf[LEVER:LEVER + 3],
+                              vn, ve, vd, sd_h, sd_v)
+
+
+@jit
+def course_row(buf: Arr, row: int, vn: float, ve: float, sd_h: float, sd_beta: float) -> None:
+    gnss_heading.course_row(buf[H:H + 60].reshape((4, 15)), buf[Z:Z + 4],
+                            buf[R:R + 16].reshape((4, 4)), row,
+                            buf[MAT:MAT + 9].reshape((3, 3)), vn, ve, sd_h, sd_beta)

@@ -1,0 +1,544 @@
+"""DroneCAN (UAVCAN v0) adapter over python-can: CAN frames <-> navd.types.
+
+The ``dronecan`` package supplies the DSDL types and the transfer codec
+(``transport.Transfer``: payload bits, multi-frame split, transfer CRC seeded with the data
+type signature).  Its driver and node are not used: frames come from python-can, and
+reassembly is done here, frame by frame, as libcanard does it:
+
+* only 29-bit message frames from a non-anonymous node of an accepted data type are
+  considered (service, anonymous, 11-bit, remote, error and FD frames are counted and
+  dropped);
+* a transfer session is (source node, data type ID); a start-of-transfer frame (re)starts
+  it; later frames must carry the same transfer ID and the alternating toggle bit (a frame
+  with the wrong toggle is dropped, not the session, so a duplicated frame is harmless);
+  every frame but the last must be full (8 bytes);
+* the transfer CRC (first two payload bytes of a multi-frame transfer) is checked by the
+  codec; a lost middle frame shows up as a toggle error and/or a CRC mismatch;
+* a session with no end after ``transfer_timeout_s`` (100 ms) is evicted and counted.
+
+Inputs
+    uavcan.equipment.ahrs.RawIMU (1003): if ``integration_interval`` > 0, the integrals
+    ``rate_gyro_integral`` (rad) and ``accelerometer_integral`` (m/s) are the increments
+    over that interval; otherwise the float16 point samples ``rate_gyro_latest`` (rad/s)
+    and ``accelerometer_latest`` (m/s^2) are held over the interval since the previous
+    sample (float16: ~0.05 % resolution, saturating at 65504).
+    uavcan.equipment.gnss.Fix2 (1063): lat/lon int37 in 1e-8 deg, ``height_ellipsoid_mm``,
+    ``ned_velocity`` float32 m/s, ``status`` must be 3D fix; ``mode``/``sub_mode`` give
+    DGPS/RTK.  Fix2 has ONE ``covariance`` (float16[<=36]) over NED position and velocity
+    (the separate position_covariance / velocity_covariance belong to the older Fix, 1060):
+    6 entries = diagonal (ArduPilot AP_Periph sends [hacc², hacc², vacc², sacc², sacc²,
+    sacc²]), 36 = full 6x6, 0 = unknown (config defaults); NaN entries are unknown.
+    ``ecef_position_velocity`` (<=1): position int36 mm, velocity float32 m/s.
+    Time: ``timestamp.usec`` (bus-synchronised time, 0 when the node has none: such
+    samples are rejected unless ``use_receive_time``).
+Output
+    uavcan.equipment.ahrs.Solution (1000): quaternion in x, y, z, w order (navd is w, x, y, z),
+    float16; attitude 1-sigma as a diagonal roll/pitch/yaw covariance (rad²).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import can
+import dronecan
+from dronecan import transport
+
+from navd.diag import Counters, RateLimitedLog
+from navd.io.common import (
+    Limits,
+    RateIntegrator,
+    Rejector,
+    Sample,
+    SampleCallback,
+    all_finite,
+    gnss_reject_reason,
+    imu_reject_reason,
+    monotonic_us,
+)
+from navd.types import FixType, GnssSample, ImuSample, NavSolution
+
+__all__ = [
+    "FIX2_DTID",
+    "RAW_IMU_DTID",
+    "SOLUTION_DTID",
+    "DronecanConfig",
+    "DronecanDecoder",
+    "DronecanEncoder",
+    "DronecanLink",
+    "open_bus",
+]
+
+_log = logging.getLogger(__name__)
+
+RAW_IMU_DTID = 1003
+FIX2_DTID = 1063
+SOLUTION_DTID = 1000
+DEG = math.pi / 180.0
+
+_RAW_IMU = dronecan.TYPENAMES["uavcan.equipment.ahrs.RawIMU"]
+_FIX2 = dronecan.TYPENAMES["uavcan.equipment.gnss.Fix2"]
+_SOLUTION = dronecan.TYPENAMES["uavcan.equipment.ahrs.Solution"]
+_MIN_PAYLOAD = {
+    RAW_IMU_DTID: (_RAW_IMU.get_min_bitlen() + 7) // 8,
+    FIX2_DTID: (_FIX2.get_min_bitlen() + 7) // 8,
+}
+_MAX_TRANSFER_BYTES = 512  # larger than any accepted type; caps memory per session
+
+
+@dataclass(frozen=True)
+class DronecanConfig:
+    """Bus and decoder settings, SI units.
+
+    interface/channel: python-can bus, e.g. ("socketcan", "can0"), ("virtual", "any").
+    node_id: our node ID for outputs (1..127).
+    allow_nodes: accepted source node IDs; None accepts any.
+    kernel_filters: ask the bus (SocketCAN: the kernel) to deliver only accepted data types.
+    """
+
+    interface: str = "socketcan"
+    channel: str = "can0"
+    node_id: int = 100
+    allow_nodes: frozenset[int] | None = None
+    transfer_timeout_s: float = 0.1
+    nominal_imu_rate_hz: float | None = None
+    max_imu_gap_s: float = 0.1
+    use_receive_time: bool = False
+    default_h_acc_m: float = 5.0
+    default_v_acc_m: float = 10.0
+    default_vel_acc_mps: float = 0.5
+    kernel_filters: bool = True
+    priority: int = 16
+    limits: Limits = field(default_factory=Limits)
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.node_id <= 127:
+            raise ValueError(f"node_id must be 1..127, got {self.node_id}")
+        if not 0 <= self.priority <= 31:
+            raise ValueError(f"priority must be 0..31, got {self.priority}")
+        if not self.transfer_timeout_s > 0.0:
+            raise ValueError("transfer_timeout_s must be > 0")
+        if self.nominal_imu_rate_hz is not None and not self.nominal_imu_rate_hz > 0.0:
+            raise ValueError("nominal_imu_rate_hz must be > 0")
+
+
+class _Session:
+    __slots__ = ("frames", "nbytes", "next_toggle", "start_us", "tid")
+
+    def __init__(self, tid: int, start_us: int) -> None:
+        self.tid = tid
+        self.start_us = start_us
+        self.next_toggle = 0
+        self.nbytes = 0
+        self.frames: list[Any] = []
+
+
+def _fix_type(mode: int, sub_mode: int) -> FixType:
+    if mode == 1:
+        return FixType.DGPS
+    if mode == 2:
+        return FixType.RTK_FIXED if sub_mode == 1 else FixType.RTK_FLOAT
+    if mode == 3:  # PPP: better than single point, no RTK ambiguity resolution
+        return FixType.DGPS
+    return FixType.FIX_3D
+
+
+class DronecanDecoder:
+    """Frame-by-frame reassembly and decoding; never raises on bus input."""
+
+    def __init__(
+        self,
+        config: DronecanConfig | None = None,
+        counters: Counters | None = None,
+        log: RateLimitedLog | None = None,
+    ) -> None:
+        self.config = config if config is not None else DronecanConfig()
+        self._reject = Rejector.create(__name__, "dronecan", counters, log)
+        self.counters = self._reject.counters
+        cfg = self.config
+        nominal = (
+            round(1e6 / cfg.nominal_imu_rate_hz) if cfg.nominal_imu_rate_hz is not None else None
+        )
+        self._imu = RateIntegrator(self._reject, nominal, round(cfg.max_imu_gap_s * 1e6))
+        self._timeout_us = round(cfg.transfer_timeout_s * 1e6)
+        self._sessions: dict[tuple[int, int], _Session] = {}
+
+    @property
+    def pending(self) -> int:
+        """Partial transfers being reassembled."""
+        return len(self._sessions)
+
+    def evict_stale(self, now_us: int) -> int:
+        stale = [k for k, s in self._sessions.items() if now_us - s.start_us > self._timeout_us]
+        for k in stale:
+            del self._sessions[k]
+            self._reject("stale_transfer", "node %d dtid %d: no end within timeout", *k)
+        return len(stale)
+
+    def feed(self, msg: can.Message, recv_t_us: int | None = None) -> list[Sample]:
+        """Take one CAN frame; return the sample(s) a completed transfer produced."""
+        now = recv_t_us if recv_t_us is not None else monotonic_us()
+        if self._sessions:
+            self.evict_stale(now)
+        try:
+            payload = self._reassemble(msg, now)
+            if payload is None:
+                return []
+            sample = self._decode(*payload)
+        except Exception as exc:
+            self._reject("decode_error", "%s: %s", type(exc).__name__, exc)
+            return []
+        if sample is None:
+            return []
+        self.counters.inc("imu_ok" if isinstance(sample, ImuSample) else "gnss_ok")
+        return [sample]
+
+    def _reassemble(self, msg: can.Message, now: int) -> tuple[int, int, int, Any] | None:
+        if msg.is_error_frame or msg.is_remote_frame:
+            self.counters.inc("bad_frame_kind")
+            return None
+        if not msg.is_extended_id:
+            self.counters.inc("not_extended")
+            return None
+        if msg.is_fd:
+            self._reject("fd_unsupported", "CAN FD frame id=0x%08x", msg.arbitration_id)
+            return None
+        data = bytes(msg.data[: msg.dlc])
+        if not data:
+            self._reject("bad_frame_len", "empty frame id=0x%08x", msg.arbitration_id)
+            return None
+        cid: int = msg.arbitration_id
+        if cid & 0x80:
+            self.counters.inc("service_ignored")
+            return None
+        src = cid & 0x7F
+        if src == 0:
+            self.counters.inc("anonymous_ignored")
+            return None
+        dtid = (cid >> 8) & 0xFFFF
+        if dtid not in _MIN_PAYLOAD:
+            self.counters.inc("ignored")
+            return None
+        if self.config.allow_nodes is not None and src not in self.config.allow_nodes:
+            self._reject("not_allowed", "node %d", src)
+            return None
+
+        tail = data[-1]
+        sot, eot, toggle, tid = bool(tail & 0x80), bool(tail & 0x40), (tail >> 5) & 1, tail & 0x1F
+        key = (src, dtid)
+        frame = transport.Frame(message_id=cid, data=data)
+        if sot:
+            if key in self._sessions:
+                self._reject("transfer_restarted", "node %d dtid %d: new start before end", *key)
+                del self._sessions[key]
+            if toggle != 0:
+                self._reject("bad_toggle", "node %d dtid %d: start frame with toggle set", *key)
+                return None
+            if eot:
+                single = self._complete([frame], dtid)
+                return (src, dtid, now, single) if single is not None else None
+            if len(data) != 8:
+                self._reject("bad_frame_len", "node %d dtid %d: short non-final frame", *key)
+                return None
+            sess = _Session(tid, now)
+            sess.frames.append(frame)
+            sess.nbytes = len(data) - 1
+            sess.next_toggle = 1
+            self._sessions[key] = sess
+            return None
+
+        sess_opt = self._sessions.get(key)
+        if sess_opt is None:
+            self._reject("orphan_frame", "node %d dtid %d: continuation without start", *key)
+            return None
+        sess = sess_opt
+        if tid != sess.tid:
+            self._reject("bad_transfer_id", "node %d dtid %d: tid %d during %d",
+                         src, dtid, tid, sess.tid)
+            return None
+        if toggle != sess.next_toggle:
+            self._reject("bad_toggle", "node %d dtid %d: toggle %d, expected %d",
+                         src, dtid, toggle, sess.next_toggle)
+            return None
+        if not eot and len(data) != 8:
+            self._reject("bad_frame_len", "node %d dtid %d: short non-final frame", *key)
+            del self._sessions[key]
+            return None
+        sess.frames.append(frame)
+        sess.nbytes += len(data) - 1
+        sess.next_toggle ^= 1
+        if sess.nbytes > _MAX_TRANSFER_BYTES:
+            self._reject("oversize_transfer", "node %d dtid %d: > %d bytes",
+                         src, dtid, _MAX_TRANSFER_BYTES)
+            del self._sessions[key]
+            return None
+        if not eot:
+            return None
+        del self._sessions[key]
+        payload = self._complete(sess.frames, dtid)
+        return (src, dtid, sess.start_us, payload) if payload is not None else None
+
+    def _complete(self, frames: list[Any], dtid: int) -> Any:
+        t = transport.Transfer()
+        try:
+            t.from_frames(frames)
+        except transport.TransferError as exc:
+            reason = "bad_crc" if "CRC" in str(exc) else "bad_transfer"
+            self._reject(reason, "dtid %d: %s", dtid, str(exc)[:120])
+            return None
+        # The codec decodes a short payload without complaint (missing bits read as 0 or
+        # None), so length is checked here.
+        n = _payload_len(frames)
+        if n < _MIN_PAYLOAD[dtid]:
+            self._reject("short_payload", "dtid %d: %d bytes < %d", dtid, n, _MIN_PAYLOAD[dtid])
+            return None
+        return t.payload
+
+    def _decode(self, src: int, dtid: int, recv_t_us: int, p: Any) -> Sample | None:
+        if dtid == RAW_IMU_DTID:
+            return self._raw_imu(src, recv_t_us, p)
+        return self._fix2(recv_t_us, p)
+
+    def _stamp(self, usec: int, recv_t_us: int, what: str) -> int | None:
+        if self.config.use_receive_time:
+            return recv_t_us
+        if usec <= 0:
+            self._reject(f"{what}_no_timestamp", "timestamp.usec is 0 (no time sync); "
+                         "set use_receive_time")
+            return None
+        return usec
+
+    def _raw_imu(self, src: int, recv_t_us: int, p: Any) -> ImuSample | None:
+        t_us = self._stamp(int(p.timestamp.usec), recv_t_us, "imu")
+        if t_us is None:
+            return None
+        key = (src, RAW_IMU_DTID)
+        interval = float(p.integration_interval)
+        if math.isfinite(interval) and interval > 0.0:
+            dth = tuple(float(v) for v in p.rate_gyro_integral)
+            dvl = tuple(float(v) for v in p.accelerometer_integral)
+            dt_us = round(interval * 1e6)
+            if dt_us <= 0 or not all_finite(*dth, *dvl):
+                self._reject("imu_nonfinite", "integrals %s %s over %r s", dth, dvl, interval)
+                return None
+            k = 1.0 / interval
+            reason = imu_reject_reason(
+                dth[0] * k, dth[1] * k, dth[2] * k, dvl[0] * k, dvl[1] * k, dvl[2] * k,
+                self.config.limits,
+            )
+            if reason is not None:
+                self._reject(reason, "integrals %s %s over %r s", dth, dvl, interval)
+                return None
+            self._imu.note_time(key, t_us)
+            return ImuSample(t_us, dt_us, dth[0], dth[1], dth[2], dvl[0], dvl[1], dvl[2])
+        gx, gy, gz = (float(v) for v in p.rate_gyro_latest)
+        ax, ay, az = (float(v) for v in p.accelerometer_latest)
+        reason = imu_reject_reason(gx, gy, gz, ax, ay, az, self.config.limits)
+        if reason is not None:
+            self._reject(reason, "gyro=%s accel=%s", (gx, gy, gz), (ax, ay, az))
+            return None
+        return self._imu.push(key, t_us, (gx, gy, gz), (ax, ay, az))
+
+    def _accuracy(self, cov: list[float]) -> tuple[float, float, float] | None:
+        """(h_acc, v_acc, vel_acc) 1-sigma from Fix2 covariance; None if unusable."""
+        cfg = self.config
+        if len(cov) == 6:
+            diag = cov
+        elif len(cov) == 36:
+            diag = [cov[7 * i] for i in range(6)]
+        else:
+            if cov:
+                self.counters.inc("gnss_cov_unrecognised")
+            return cfg.default_h_acc_m, cfg.default_v_acc_m, cfg.default_vel_acc_mps
+        if any(math.isinf(v) or v < 0.0 for v in diag):
+            # float16 saturates at 65504 m² -> inf: the receiver is saying "useless".
+            return None
+
+        def sigma(values: list[float], default: float) -> float:
+            if any(math.isnan(v) for v in values):
+                return default
+            var = sum(values) / len(values)
+            return math.sqrt(var) if var > 0.0 else default
+
+        return (
+            sigma(diag[0:2], cfg.default_h_acc_m),
+            sigma(diag[2:3], cfg.default_v_acc_m),
+            sigma(diag[3:6], cfg.default_vel_acc_mps),
+        )
+
+    def _fix2(self, recv_t_us: int, p: Any) -> GnssSample | None:
+        if int(p.status) != 3:
+            self._reject("gnss_no_fix", "status=%d", int(p.status))
+            return None
+        t_us = self._stamp(int(p.timestamp.usec), recv_t_us, "gnss")
+        if t_us is None:
+            return None
+        lat_deg = int(p.latitude_deg_1e8) * 1e-8
+        lon_deg = int(p.longitude_deg_1e8) * 1e-8
+        alt_m = int(p.height_ellipsoid_mm) * 1e-3
+        vn, ve, vd = (float(v) for v in p.ned_velocity)
+        if not all_finite(vn, ve, vd):
+            self._reject("gnss_nonfinite", "ned_velocity=%r", (vn, ve, vd))
+            return None
+        reason = gnss_reject_reason(lat_deg, lon_deg, alt_m, (vn, ve, vd), self.config.limits)
+        if reason is not None:
+            self._reject(reason, "lat=%r lon=%r alt=%r", lat_deg, lon_deg, alt_m)
+            return None
+        acc = self._accuracy([float(v) for v in p.covariance])
+        if acc is None:
+            self._reject("gnss_accuracy_saturated", "covariance inf/negative")
+            return None
+        pos_ecef: tuple[float, float, float] | None = None
+        vel_ecef: tuple[float, float, float] | None = None
+        if len(p.ecef_position_velocity) > 0:
+            e = p.ecef_position_velocity[0]
+            px, py, pz = (int(v) * 1e-3 for v in e.position_xyz_mm)
+            ex, ey, ez = (float(v) for v in e.velocity_xyz)
+            r = math.sqrt(px * px + py * py + pz * pz)
+            if all_finite(ex, ey, ez) and 6.0e6 < r < 6.6e6:
+                pos_ecef, vel_ecef = (px, py, pz), (ex, ey, ez)
+            else:
+                self._reject("gnss_bad_ecef", "|r|=%r m vel=%r", r, (ex, ey, ez))
+        return GnssSample(
+            t_us=t_us,
+            lat_rad=lat_deg * DEG,
+            lon_rad=lon_deg * DEG,
+            alt_m=alt_m,
+            vel_n=vn,
+            vel_e=ve,
+            vel_d=vd,
+            h_acc_m=acc[0],
+            v_acc_m=acc[1],
+            vel_acc_mps=acc[2],
+            fix_type=_fix_type(int(p.mode), int(p.sub_mode)),
+            pos_ecef_m=pos_ecef,
+            vel_ecef_mps=vel_ecef,
+        )
+
+
+def _payload_len(frames: list[Any]) -> int:
+    n = sum(len(f.bytes) - 1 for f in frames)
+    return n - 2 if len(frames) > 1 else n  # multi-frame transfers start with the CRC
+
+
+def transfer_messages(
+    payload: Any, node_id: int, transfer_id: int, priority: int
+) -> list[can.Message]:
+    """Serialise one message transfer into classic-CAN frames (tail bytes, CRC)."""
+    t = transport.Transfer(
+        transfer_id=transfer_id & 0x1F,
+        source_node_id=node_id,
+        payload=payload,
+        transfer_priority=priority,
+    )
+    return [
+        can.Message(arbitration_id=f.message_id, data=bytes(f.bytes), is_extended_id=True)
+        for f in t.to_frames()
+    ]
+
+
+class DronecanEncoder:
+    """navd outputs -> DroneCAN frames; one transfer-ID counter per data type, as required."""
+
+    def __init__(self, node_id: int = 100, priority: int = 16) -> None:
+        if not 1 <= node_id <= 127:
+            raise ValueError(f"node_id must be 1..127, got {node_id}")
+        self.node_id = node_id
+        self.priority = priority
+        self._tid: dict[int, int] = {}
+
+    def _next_tid(self, dtid: int) -> int:
+        tid = self._tid.get(dtid, 0)
+        self._tid[dtid] = (tid + 1) & 0x1F
+        return tid
+
+    def encode_solution(self, sol: NavSolution) -> list[can.Message]:
+        w, x, y, z = sol.quat_nb
+        m = dronecan.uavcan.equipment.ahrs.Solution()
+        m.timestamp.usec = max(0, sol.t_us)
+        m.orientation_xyzw = [x, y, z, w]
+        m.orientation_covariance = [
+            sol.att_sd_rad[0] ** 2, 0.0, 0.0,
+            0.0, sol.att_sd_rad[1] ** 2, 0.0,
+            0.0, 0.0, sol.att_sd_rad[2] ** 2,
+        ]
+        m.angular_velocity = list(sol.rate_b)
+        # navd does not estimate linear acceleration; NaN says "not provided".
+        m.linear_acceleration = [math.nan, math.nan, math.nan]
+        return transfer_messages(m, self.node_id, self._next_tid(SOLUTION_DTID), self.priority)
+
+
+def open_bus(config: DronecanConfig, dtids: Iterable[int] = (RAW_IMU_DTID, FIX2_DTID)) -> Any:
+    """Open the python-can bus named in config (SocketCAN needs no privileges to use)."""
+    filters = None
+    if config.kernel_filters:
+        # Message frames: data type ID in bits 8..23, service flag (bit 7) clear.
+        filters = [{"can_id": d << 8, "can_mask": 0xFFFF80, "extended": True} for d in dtids]
+    return can.Bus(interface=config.interface, channel=config.channel, can_filters=filters)
+
+
+class DronecanLink(can.Listener):
+    """A bus, a python-can Notifier calling back on the asyncio loop, and a decoder."""
+
+    def __init__(
+        self,
+        bus: Any,
+        decoder: DronecanDecoder,
+        on_sample: SampleCallback | None,
+        clock_us: Callable[[], int] = monotonic_us,
+    ) -> None:
+        self.bus = bus
+        self.decoder = decoder
+        self.on_sample = on_sample
+        self.clock_us = clock_us
+        self.counters = decoder.counters
+        self._notifier: Any = None
+
+    @classmethod
+    async def open(
+        cls,
+        config: DronecanConfig,
+        decoder: DronecanDecoder | None = None,
+        on_sample: SampleCallback | None = None,
+        *,
+        clock_us: Callable[[], int] = monotonic_us,
+    ) -> DronecanLink:
+        dec = decoder if decoder is not None else DronecanDecoder(config)
+        bus = open_bus(config)
+        link = cls(bus, dec, on_sample, clock_us)
+        # With a loop, the Notifier delivers on the loop thread (add_reader for SocketCAN,
+        # call_soon_threadsafe from its reader thread otherwise), so decoding and the
+        # callback never race the estimator task.
+        link._notifier = can.Notifier(bus, [link], loop=asyncio.get_running_loop())
+        return link
+
+    def on_message_received(self, msg: can.Message) -> None:
+        for s in self.decoder.feed(msg, self.clock_us()):
+            if self.on_sample is not None:
+                self.on_sample(s)
+
+    def on_error(self, exc: Exception) -> None:
+        self.counters.inc("bus_error")
+        _log.warning("CAN bus error: %s", exc)
+
+    def send(self, msgs: list[can.Message]) -> bool:
+        """Send all frames of a transfer without blocking; False (counted) if the bus refused."""
+        for m in msgs:
+            try:
+                self.bus.send(m, timeout=0.0)
+            except can.CanError as exc:
+                self.counters.inc("tx_dropped")
+                _log.debug("CAN send failed: %s", exc)
+                return False
+        return True
+
+    def close(self) -> None:
+        if self._notifier is not None:
+            self._notifier.stop()
+            self._notifier = None
+        self.bus.shutdown()

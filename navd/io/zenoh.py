@@ -1,0 +1,226 @@
+"""Zenoh sink: NavSolution / status dicts -> JSON samples on ``navd/<vehicle>/...``.
+
+Session: peer mode, multicast scouting OFF, explicit endpoints (default: listen on
+``tcp/127.0.0.1:7447``, connect to nothing) so nothing leaves the host unless configured.
+
+Key expressions (``<vehicle>`` is one key chunk: no ``/ * $ ? #``)
+    navd/<vehicle>/attitude   one sample per published solution
+    navd/<vehicle>/status     whatever the daemon reports, as a JSON object
+
+Encoding ``application/json``; every object has ``"schema": 1``.  Attitude fields:
+    schema      1
+    t_us        int, time of validity (sensor clock), microseconds
+    quat_wxyz   [w, x, y, z] of C_b^n (body FRD -> local NED), scalar first
+    euler_deg   [roll, pitch, yaw], ZYX, degrees; yaw clockwise from north in (-180, 180]
+    sigma_deg   [roll, pitch, yaw] 1-sigma, degrees
+    aligned     bool, heading initialised from a trusted source
+Non-finite numbers are sent as ``null`` (JSON has no NaN).  A status object is the dict
+given to :meth:`ZenohPublisher.publish_status` with ``schema`` set (and overriding any
+``schema`` key in it).
+
+Zenoh calls subscriber callbacks on its own threads; :class:`ZenohSubscriber` hands each
+message to the asyncio loop with ``loop.call_soon_threadsafe``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+
+from navd.diag import Counters
+from navd.types import NavSolution
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "ZenohConfig",
+    "ZenohPublisher",
+    "ZenohSubscriber",
+    "attitude_key",
+    "attitude_payload",
+    "status_key",
+]
+
+_log = logging.getLogger(__name__)
+
+SCHEMA_VERSION = 1
+_BAD_CHUNK_CHARS = set("/*$?#")
+
+
+@dataclass(frozen=True)
+class ZenohConfig:
+    vehicle: str = "vehicle"
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    connect: tuple[str, ...] = ()
+    multicast_scouting: bool = False
+
+    def __post_init__(self) -> None:
+        if not self.vehicle or _BAD_CHUNK_CHARS & set(self.vehicle):
+            raise ValueError(f"vehicle {self.vehicle!r} must be one key chunk (no / * $ ? #)")
+
+    def to_zenoh(self) -> Any:
+        c = zenoh.Config()
+        c.insert_json5("mode", json.dumps("peer"))
+        c.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
+        c.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
+        c.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        return c
+
+
+def attitude_key(vehicle: str) -> str:
+    return f"navd/{vehicle}/attitude"
+
+
+def status_key(vehicle: str) -> str:
+    return f"navd/{vehicle}/status"
+
+
+def _num(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+def attitude_payload(sol: NavSolution) -> dict[str, Any]:
+    d = math.degrees
+    return {
+        "schema": SCHEMA_VERSION,
+        "t_us": sol.t_us,
+        "quat_wxyz": [_num(v) for v in sol.quat_nb],
+        "euler_deg": [_num(d(sol.roll_rad)), _num(d(sol.pitch_rad)), _num(d(sol.yaw_rad))],
+        "sigma_deg": [_num(d(v)) for v in sol.att_sd_rad],
+        "aligned": bool(sol.heading_aligned),
+    }
+
+
+def _scrub(obj: Any) -> Any:
+    """Replace non-finite floats (anywhere in the structure) by None for strict JSON."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, Mapping):
+        return {str(k): _scrub(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_scrub(v) for v in obj]
+    return obj
+
+
+def _close_session(session: Any) -> None:
+    session.close()
+
+
+class ZenohPublisher:
+    """Owns one Zenoh session and the two publishers; ``close`` (or ``with``) ends it."""
+
+    def __init__(self, config: ZenohConfig | None = None) -> None:
+        self.config = config if config is not None else ZenohConfig()
+        self.counters = Counters()
+        self._session: Any = zenoh.open(self.config.to_zenoh())
+        try:
+            enc = zenoh.Encoding.APPLICATION_JSON
+            self._att = self._session.declare_publisher(
+                attitude_key(self.config.vehicle), encoding=enc
+            )
+            self._status = self._session.declare_publisher(
+                status_key(self.config.vehicle), encoding=enc
+            )
+        except BaseException:
+            _close_session(self._session)
+            raise
+
+    def publish_attitude(self, sol: NavSolution) -> None:
+        self._put(self._att, attitude_payload(sol), "attitude")
+
+    def publish_status(self, status: Mapping[str, Any]) -> None:
+        self._put(self._status, {**status, "schema": SCHEMA_VERSION}, "status")
+
+    def _put(self, pub: Any, obj: Mapping[str, Any], what: str) -> None:
+        try:
+            text = json.dumps(_scrub(obj), allow_nan=False, separators=(",", ":"))
+        except (TypeError, ValueError) as exc:
+            # A status dict with an unserialisable value is a daemon bug; keep publishing
+            # attitude regardless.
+            self.counters.inc(f"{what}_unserialisable")
+            _log.warning("zenoh: cannot serialise %s: %s", what, exc)
+            return
+        try:
+            pub.put(text)
+        except zenoh.ZError as exc:
+            self.counters.inc(f"{what}_put_error")
+            _log.warning("zenoh: put %s failed: %s", what, exc)
+            return
+        self.counters.inc(f"{what}_sent")
+
+    def close(self) -> None:
+        if self._session is not None:
+            _close_session(self._session)
+            self._session = None
+
+    def __enter__(self) -> ZenohPublisher:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class ZenohSubscriber:
+    """Test/demo subscriber: JSON samples delivered on the asyncio loop.
+
+    ``on_message(key, obj)`` runs on ``loop``; by default messages go to :attr:`queue`.
+    Undecodable payloads are counted (``bad_json``) and dropped.
+    """
+
+    def __init__(
+        self,
+        config: ZenohConfig,
+        key_expr: str,
+        loop: asyncio.AbstractEventLoop,
+        on_message: Callable[[str, dict[str, Any]], None] | None = None,
+    ) -> None:
+        self.loop = loop
+        self.counters = Counters()
+        self.queue: asyncio.Queue[tuple[str, dict[str, Any]]] = asyncio.Queue()
+        self._on_message = on_message if on_message is not None else self._enqueue
+        self._session: Any = zenoh.open(config.to_zenoh())
+        try:
+            self._sub = self._session.declare_subscriber(key_expr, self._on_sample)
+        except BaseException:
+            _close_session(self._session)
+            raise
+
+    def _enqueue(self, key: str, obj: dict[str, Any]) -> None:
+        self.queue.put_nowait((key, obj))
+
+    def _on_sample(self, sample: Any) -> None:
+        # Zenoh thread: parse here, touch asyncio state only through the loop.
+        try:
+            obj = json.loads(sample.payload.to_bytes())
+            if not isinstance(obj, dict):
+                raise ValueError("not a JSON object")
+        except ValueError:  # includes JSONDecodeError and UnicodeDecodeError
+            self._to_loop(self.counters.inc, "bad_json")
+            return
+        self._to_loop(self._on_message, str(sample.key_expr), obj)
+
+    def _to_loop(self, fn: Callable[..., None], *args: Any) -> None:
+        # RuntimeError: loop closed while the session was still delivering (shutdown).
+        with contextlib.suppress(RuntimeError):
+            self.loop.call_soon_threadsafe(fn, *args)
+
+    async def recv(self, timeout_s: float | None = None) -> tuple[str, dict[str, Any]]:
+        return await asyncio.wait_for(self.queue.get(), timeout_s)
+
+    def close(self) -> None:
+        if self._session is not None:
+            _close_session(self._session)
+            self._session = None
+
+    def __enter__(self) -> ZenohSubscriber:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
