@@ -77,7 +77,7 @@ def score_run(run: SimRun, cfg: EstimatorConfig, rate_hz: float = 10.0,
     e = est if est is not None else Estimator(cfg)
     t0 = int(run.truth_t_us[0])
     dt_truth = int(run.truth_t_us[1] - run.truth_t_us[0])
-    period = int(round(1e6 / rate_hz))
+    period = round(1e6 / rate_hz)
     rows: list[tuple[float, ...]] = []
     phi = np.zeros(3)
     for s in run.samples():

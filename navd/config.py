@@ -163,7 +163,7 @@ class InitSection:
     vel_sd: float = _f(0.5, "mps")
     pos_sd: float = _f(10.0, "m")
     level_time: float = _f(1.0, "s")
-    static_speed: float = _f(0.3, "mps")
+    level_max_accel: float = _f(0.3, "mps2")
     static_rate_tol: float = _f(3.0, "dps")
 
 

@@ -13,8 +13,7 @@ from pathlib import Path
 
 from navd.config import ConfigError, EstimatorConfig, load_config
 from navd.core.estimator import Estimator
-from navd.io.replay import ReadReport, ReplayFormatError, SolutionWriter, merge, read_gnss, \
-    read_imu
+from navd.io.replay import ReadReport, ReplayFormatError, SolutionWriter, merge, read_gnss, read_imu
 from navd.types import GnssSample, ImuSample
 
 

@@ -1,4 +1,4 @@
-"""Config: every estimator key is documented in config/navd.toml, units convert, errors name the key."""
+"""Config: every estimator key is documented, units convert, errors name key and unit."""
 
 from __future__ import annotations
 

@@ -128,6 +128,7 @@ class Estimator:
         self._level_static = True
         self._level_t = 0.0
         self._pending_fix: GnssSample | None = None
+        self._level_fix0: GnssSample | None = None
         self._course_rejects = 0
         self.heading_aligned = False
         self.x[:] = 0.0
@@ -216,17 +217,25 @@ class Estimator:
             ls[:] = 0.0
             self._level_n = 0
             self._level_t = 0.0
+            self._level_fix0 = None
 
     def _start_nav(self, fix: GnssSample) -> None:
         c = self.cfg
         ls = self._level_sum
         T = self._level_t
         fx, fy, fz = ls[0] / T, ls[1] / T, ls[2] / T
-        # Per-sample accelerometer noise of a MEMS IMU can exceed any useful motion
-        # threshold, so "static" is judged from the mean rate and the GNSS speed instead.
+        # Levelling needs the mean specific force to be gravity alone: no turning and no
+        # change of velocity over the window.  Per-sample accelerometer noise of a MEMS IMU
+        # can exceed any useful threshold, so this is judged from the mean rate and the GNSS
+        # velocity change between the window's first and last fix.
+        f0 = self._level_fix0 if self._level_fix0 is not None else fix
+        dt_fix = (fix.t_us - f0.t_us) * 1e-6
+        dv = math.sqrt((fix.vel_n - f0.vel_n) ** 2 + (fix.vel_e - f0.vel_e) ** 2
+                       + (fix.vel_d - f0.vel_d) ** 2)
         self._level_static = (
             math.sqrt(ls[3] ** 2 + ls[4] ** 2 + ls[5] ** 2) / T < c.init.static_rate_tol
-            and math.sqrt(fix.vel_n**2 + fix.vel_e**2 + fix.vel_d**2) < c.init.static_speed)
+            and (dv < c.init.level_max_accel * dt_fix + 4.0 * max(fix.vel_acc_mps, 0.0)
+                 if dt_fix > 0.0 else math.hypot(fix.vel_n, fix.vel_e) < 0.5))
         roll = math.atan2(-fy, -fz)
         pitch = math.atan2(fx, math.sqrt(fy * fy + fz * fz))
         yaw = 0.0
@@ -296,6 +305,8 @@ class Estimator:
         self._last_gnss_t_us = g.t_us
         cnt["gnss"] += 1
         if self._stage == _WAIT:
+            if self._level_fix0 is None:
+                self._level_fix0 = g
             self._pending_fix = g
             if self._level_t >= self.cfg.init.level_time:
                 self._start_nav(g)
@@ -399,7 +410,7 @@ class Estimator:
 
     def _velocity_and_course(self, g: GnssSample, s_sd: float) -> None:
         cnt = self.counters
-        H, z, R = self._H, self._z, self._R
+        H, z = self._H, self._z
         use_course = self._course_usable(g)
         m = st.fill_velocity(self._buf, g.vel_n, g.vel_e, g.vel_d, s_sd, s_sd)
         if not use_course:

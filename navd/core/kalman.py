@@ -4,11 +4,12 @@ Propagation (interval T, F held constant over it)::
 
     Phi = I + F T + (F T)^2 / 2,    P <- Phi P Phi^T + Qd,    Qd = diag(q) T
 
-Update of a small measurement block ``z = H x + v``, ``v ~ N(0, R)`` (m <= 4): the
+Update of a small measurement block ``z = H x + v``, ``v ~ N(0, R)`` (m <= 4) with a full,
+possibly correlated or singular R (GNSS course shares its noise with the velocity): the
 normalised innovation squared ``z^T S^-1 z`` (S = H P H^T + R) is gated first; an accepted
-block is whitened with the Cholesky factor of R (so correlated components, such as GNSS
-course and velocity, are handled exactly) and applied as m sequential scalar updates in the
-symmetric rank-one form, followed by a symmetrisation.  Nothing here allocates.
+block is applied through the Cholesky factor L of S, ``U = L^-1 H P``, ``x += U^T L^-1
+(z - H x)``, ``P -= U^T U``, which is the textbook ``K = P H^T S^-1`` update written so that
+P stays exactly symmetric.  Nothing here allocates.
 """
 
 from __future__ import annotations
@@ -74,9 +75,9 @@ def gated_update(x: Arr, P: Arr, H: Arr, z: Arr, R: Arr, m: int, gate: float,
     Args:
         x: error state (15,), updated.
         P: covariance (15, 15), updated.
-        H: (4, 15) rows 0..m-1 used.  Rows are overwritten (whitened) on accept.
-        z: (4,) innovation (computed - measured), first m used; overwritten on accept.
-        R: (4, 4) measurement covariance, top-left m x m used; overwritten.
+        H: (4, 15) rows 0..m-1 used.  Rows are overwritten on accept.
+        z: (4,) innovation (computed - measured), first m used.
+        R: (4, 4) measurement covariance, top-left m x m used.
         gate: chi-square threshold for m degrees of freedom (<= 0 disables the gate).
         S, L: (4, 4) scratch.  ph: (15,) scratch.  w: (4,) scratch.
     Returns:
@@ -119,49 +120,42 @@ def gated_update(x: Arr, P: Arr, H: Arr, z: Arr, R: Arr, m: int, gate: float,
         return -math.inf
     if gate > 0.0 and nis > gate:
         return -nis
-    # whiten with chol(R): R = Lr Lr^T;  z' = Lr^-1 z, H' = Lr^-1 H
-    for i in range(m):
-        for j in range(i + 1):
-            s = R[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            if i == j:
-                if s <= 0.0:
-                    return -math.inf
-                L[i, i] = math.sqrt(s)
-            else:
-                L[i, j] = s / L[j, j]
-    for i in range(m):
-        for k in range(i):
-            z[i] -= L[i, k] * z[k]
-            for c in range(n):
-                H[i, c] -= L[i, k] * H[k, c]
-        z[i] /= L[i, i]
-        for c in range(n):
-            H[i, c] /= L[i, i]
-    # sequential unit-variance scalar updates
+    # Block update through chol(S) (S is PD even when R is singular, e.g. a perfect
+    # measurement or a course sharing all its noise with the velocity):
+    #   U = L^-1 H P,  r = L^-1 (z - H x),  x += U^T r,  P -= U^T U
     for a in range(m):
-        for i in range(n):
+        r = z[a]
+        for k in range(n):
+            r -= H[a, k] * x[k]
+        for k in range(a):
+            r -= L[a, k] * w[k]
+        w[a] = r / L[a, a]
+    for a in range(m):
+        for j in range(n):
             s = 0.0
             for k in range(n):
                 hk = H[a, k]
                 if hk != 0.0:
-                    s += P[i, k] * hk
-            ph[i] = s
-        s = 1.0
-        r = z[a]
-        for k in range(n):
-            s += H[a, k] * ph[k]
-            r -= H[a, k] * x[k]
-        inv = 1.0 / s
-        for i in range(n):
-            x[i] += ph[i] * inv * r
-        for i in range(n):
-            ki = ph[i] * inv
-            for j in range(i, n):
-                v = P[i, j] - ki * ph[j]
-                P[i, j] = v
-                P[j, i] = v
+                    s += hk * P[k, j]
+            ph[j] = s
+        for j in range(n):
+            v = ph[j]
+            for k in range(a):
+                v -= L[a, k] * H[k, j]
+            H[a, j] = v / L[a, a]
+    for i in range(n):
+        s = 0.0
+        for a in range(m):
+            s += H[a, i] * w[a]
+        x[i] += s
+    for i in range(n):
+        for j in range(i, n):
+            s = 0.0
+            for a in range(m):
+                s += H[a, i] * H[a, j]
+            v = P[i, j] - s
+            P[i, j] = v
+            P[j, i] = v
     return nis
 
 

@@ -124,4 +124,5 @@ def fill_velocity(buf: Arr, vn: float, ve: float, vd: float, sd_h: float, sd_v: 
 def course_row(buf: Arr, row: int, vn: float, ve: float, sd_h: float, sd_beta: float) -> None:
     gnss_heading.course_row(buf[H:H + 60].reshape((4, 15)), buf[Z:Z + 4],
                             buf[R:R + 16].reshape((4, 4)), row,
-                            buf[MAT:MAT + 9].reshape((3, 3)), vn, ve, sd_h, sd_beta)
+                            buf[MAT:MAT + 9].reshape((3, 3)), buf[RATE:RATE + 3],
+                            buf[LEVER:LEVER + 3], vn, ve, sd_h, sd_beta)

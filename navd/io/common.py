@@ -149,6 +149,9 @@ class RateIntegrator:
         source gets the right interval."""
         self._last_t_us[key] = t_us
 
+    def last_time(self, key: Hashable) -> int | None:
+        return self._last_t_us.get(key)
+
     def interval_us(self, key: Hashable, t_us: int) -> int | None:
         """Interval ending at ``t_us`` for this source, or None if the sample is to be dropped.
 

@@ -30,7 +30,8 @@ Inputs
     sacc²]), 36 = full 6x6, 0 = unknown (config defaults); NaN entries are unknown.
     ``ecef_position_velocity`` (<=1): position int36 mm, velocity float32 m/s.
     Time: ``timestamp.usec`` (bus-synchronised time, 0 when the node has none: such
-    samples are rejected unless ``use_receive_time``).
+    samples are rejected unless ``use_receive_time``).  A transfer repeating its node's
+    previous time stamp (redundant interfaces) is dropped, never integrated twice.
 Output
     uavcan.equipment.ahrs.Solution (1000): quaternion in x, y, z, w order (navd is w, x, y, z),
     float16; attitude 1-sigma as a diagonal roll/pitch/yaw covariance (rad²).
@@ -88,6 +89,7 @@ _MIN_PAYLOAD = {
     RAW_IMU_DTID: (_RAW_IMU.get_min_bitlen() + 7) // 8,
     FIX2_DTID: (_FIX2.get_min_bitlen() + 7) // 8,
 }
+_F16_MAX = 65504.0
 _MAX_TRANSFER_BYTES = 512  # larger than any accepted type; caps memory per session
 
 
@@ -167,6 +169,7 @@ class DronecanDecoder:
         self._imu = RateIntegrator(self._reject, nominal, round(cfg.max_imu_gap_s * 1e6))
         self._timeout_us = round(cfg.transfer_timeout_s * 1e6)
         self._sessions: dict[tuple[int, int], _Session] = {}
+        self._last_fix_t_us: dict[int, int] = {}
 
     @property
     def pending(self) -> int:
@@ -302,7 +305,14 @@ class DronecanDecoder:
     def _decode(self, src: int, dtid: int, recv_t_us: int, p: Any) -> Sample | None:
         if dtid == RAW_IMU_DTID:
             return self._raw_imu(src, recv_t_us, p)
-        return self._fix2(recv_t_us, p)
+        fix = self._fix2(recv_t_us, p)
+        if fix is not None:
+            # Redundant interfaces deliver the same transfer twice.
+            if self._last_fix_t_us.get(src) == fix.t_us:
+                self.counters.inc("gnss_repeat")
+                return None
+            self._last_fix_t_us[src] = fix.t_us
+        return fix
 
     def _stamp(self, usec: int, recv_t_us: int, what: str) -> int | None:
         if self.config.use_receive_time:
@@ -334,6 +344,11 @@ class DronecanDecoder:
             if reason is not None:
                 self._reject(reason, "integrals %s %s over %r s", dth, dvl, interval)
                 return None
+            if self._imu.last_time(key) == t_us:
+                # Same transfer again (redundant interfaces): integrating it twice would
+                # double the motion.
+                self._reject("imu_duplicate_time", "node %d repeated t_us=%d", src, t_us)
+                return None
             self._imu.note_time(key, t_us)
             return ImuSample(t_us, dt_us, dth[0], dth[1], dth[2], dvl[0], dvl[1], dvl[2])
         gx, gy, gz = (float(v) for v in p.rate_gyro_latest)
@@ -355,8 +370,9 @@ class DronecanDecoder:
             if cov:
                 self.counters.inc("gnss_cov_unrecognised")
             return cfg.default_h_acc_m, cfg.default_v_acc_m, cfg.default_vel_acc_mps
-        if any(math.isinf(v) or v < 0.0 for v in diag):
-            # float16 saturates at 65504 m² -> inf: the receiver is saying "useless".
+        if any(v >= _F16_MAX or v < 0.0 for v in diag):  # NaN compares False: kept
+            # A saturated float16 (65504 m², or inf from a non-saturating encoder) means
+            # sigma > 255 m: the receiver is saying "useless", not "unknown".
             return None
 
         def sigma(values: list[float], default: float) -> float:

@@ -21,6 +21,8 @@ Inputs (all converted to SI, NED / FRD, integer microseconds)
     HIL_GPS          lat/lon degE7, alt MSL mm, vn/ve/vd cm/s (int16), eph/epv DOP x 100.
     Components not on the wire (GPS_RAW_INT vertical velocity, ignored GPS_INPUT fields,
     unknown cog/speed) are NaN in GnssSample: consumers must skip non-finite components.
+    A fix repeating the previous time stamp of its source is dropped (ArduPilot re-sends
+    the last fix when GPS_RAW_INT streams faster than the receiver updates).
     Rate-type IMU messages become increments in :class:`navd.io.common.RateIntegrator`.
 
 Outputs
@@ -72,6 +74,7 @@ __all__ = [
     "MavlinkSender",
     "MavlinkStreamProtocol",
     "MavlinkUdpProtocol",
+    "open_mavlink",
     "parse_mavlink_url",
 ]
 
@@ -181,6 +184,7 @@ class MavlinkDecoder:
         self._imu = RateIntegrator(self._reject, nominal, round(cfg.max_imu_gap_s * 1e6))
         self._ms = _MsUnwrapper()
         self._last_seq: dict[tuple[int, int], int] = {}
+        self._last_gnss_t_us: dict[tuple[int, int, int], int] = {}
         self._handlers: dict[int, Callable[[Any, int], Sample | None]] = {}
         for name in cfg.imu_messages | cfg.gnss_messages:
             self._handlers[getattr(mavlink, f"MAVLINK_MSG_ID_{name}")] = getattr(
@@ -254,8 +258,19 @@ class MavlinkDecoder:
         except (TypeError, ValueError, OverflowError) as exc:
             self._reject("decode_error", "%s: %s", m.get_type(), exc)
             return None
-        if sample is not None:
-            self.counters.inc("imu_ok" if isinstance(sample, ImuSample) else "gnss_ok")
+        if sample is None:
+            return None
+        if isinstance(sample, ImuSample):
+            self.counters.inc("imu_ok")
+            return sample
+        # ArduPilot streams GPS_RAW_INT faster than many receivers update and repeats the
+        # last fix, time stamp included; a repeat is no new information.
+        key = (src[0], src[1], msgid)
+        if self._last_gnss_t_us.get(key) == sample.t_us:
+            self.counters.inc("gnss_repeat")
+            return None
+        self._last_gnss_t_us[key] = sample.t_us
+        self.counters.inc("gnss_ok")
         return sample
 
     def _on_bad_data(self, m: Any) -> None:
@@ -868,6 +883,16 @@ class MavlinkLink:
         for t in (self._udp_transport, self._rx_transport, self._tx_transport):
             if t is not None and not t.is_closing():
                 t.close()
+
+
+async def open_mavlink(
+    url: str,
+    decoder: MavlinkDecoder | None = None,
+    on_sample: SampleCallback | None = None,
+    **kw: Any,
+) -> MavlinkLink:
+    """Open a pymavlink-style connection string; see :meth:`MavlinkLink.open`."""
+    return await MavlinkLink.open(url, decoder, on_sample, **kw)
 
 
 class MavlinkSender:

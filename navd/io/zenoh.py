@@ -171,7 +171,8 @@ class ZenohSubscriber:
     """Test/demo subscriber: JSON samples delivered on the asyncio loop.
 
     ``on_message(key, obj)`` runs on ``loop``; by default messages go to :attr:`queue`.
-    Undecodable payloads are counted (``bad_json``) and dropped.
+    Payloads not marked ``application/json`` (``wrong_encoding``) or not a JSON object
+    (``bad_json``) are counted and dropped.
     """
 
     def __init__(
@@ -197,6 +198,9 @@ class ZenohSubscriber:
 
     def _on_sample(self, sample: Any) -> None:
         # Zenoh thread: parse here, touch asyncio state only through the loop.
+        if not str(sample.encoding).startswith("application/json"):
+            self._to_loop(self.counters.inc, "wrong_encoding")
+            return
         try:
             obj = json.loads(sample.payload.to_bytes())
             if not isinstance(obj, dict):

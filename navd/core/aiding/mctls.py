@@ -71,8 +71,10 @@ from __future__ import annotations
 
 import math
 
+import numba as nb
 import numpy as np
 import numpy.typing as npt
+from numba.experimental.jitclass import jitclass
 
 from navd.core._jit import jit
 from navd.core.earth import mat_ne_into, radii
@@ -644,9 +646,10 @@ def _push_kernel(t: Arr, y: Arr, yc: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, a
                  tau: Arr, phi: Arr, sinv: Arr, d2: Arr, srt: Arr, nrm: Arr, meat: Arr,
                  rhs: Arr, x: Arr, xb: Arr, xs: Arr, e: Arr, col: Arr, vaug: Arr, sub: IArr,
                  m3: Arr, tmp: Arr, xp: Arr, xprev: Arr, vel: Arr, cov: Arr, fout: Arr,
-                 iout: IArr, t_s: float, ve: Arr, sigma_mps: float, lat_rad: float,
-                 lon_rad: float, pos_sigma_m: float, mode: int, np_: int, min_epochs: int,
-                 c3: float, n_sub: int, start_crit: int, max_gap_s: float) -> int:
+                 iout: IArr, t_s: float, vx: float, vy: float, vz: float, sigma_mps: float,
+                 lat_rad: float, lon_rad: float, pos_sigma_m: float, mode: int, np_: int,
+                 min_epochs: int, c3: float, n_sub: int, start_crit: int,
+                 max_gap_s: float) -> int:
     """Insert one epoch and solve; see :class:`Mctls` for the arrays' shapes and units."""
     nw = t.shape[0]
     count = iout[_I_COUNT]
@@ -674,7 +677,7 @@ def _push_kernel(t: Arr, y: Arr, yc: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, a
     sig[k] = max(sigma_mps, 1e-3)
     mat_ne_into(m3, lat_rad, lon_rad)
     for a in range(3):
-        y[k, a] = m3[a, 0] * ve[0] + m3[a, 1] * ve[1] + m3[a, 2] * ve[2]
+        y[k, a] = m3[a, 0] * vx + m3[a, 1] * vy + m3[a, 2] * vz
     _sigma_theta_into(sth[k], lat_rad, pos_sigma_m)
     tr = sth[k, 0, 0] + sth[k, 1, 1] + sth[k, 2, 2]
     for a in range(3):
@@ -714,6 +717,104 @@ def _push_kernel(t: Arr, y: Arr, yc: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, a
     return st
 
 
+_STATE_SPEC = [
+    # Window data, oldest..newest (newest at index window-1).
+    ("t", nb.float64[::1]),  # (W,) epoch times, s
+    ("y", nb.float64[:, ::1]),  # (W, 3) C_e^n v^e, NED m/s
+    ("yc", nb.float64[:, ::1]),  # (W, 3) B⁻¹ y, NED m/s
+    ("sig", nb.float64[::1]),  # (W,) receiver σ, m/s
+    ("sth", nb.float64[:, :, ::1]),  # (W, 3, 3) Σθ, rad²
+    ("bk", nb.float64[:, :, ::1]),  # (W, 3, 3) B = E[Exp(-δθ)]
+    ("w", nb.float64[::1]),  # (W,) weights
+    ("acc", nb.float64[::1]),  # (W,) gate: 1 accepted, 0 rejected
+    # Scratch (M = 3 (order + 1)).
+    ("tau", nb.float64[::1]),  # (W,)
+    ("phi", nb.float64[:, ::1]),  # (W, order+1) τ^j
+    ("sinv", nb.float64[:, :, ::1]),  # (W, 3, 3) S_k, s²/m²
+    ("d2", nb.float64[::1]),  # (W,)
+    ("srt", nb.float64[::1]),  # (W,)
+    ("nrm", nb.float64[:, ::1]),  # (M, M)
+    ("meat", nb.float64[:, ::1]),  # (M, M)
+    ("rhs", nb.float64[::1]),  # (M,)
+    ("x", nb.float64[::1]),  # (M,) coefficients [a_0 | a_1 | ...], NED m/s
+    ("xb", nb.float64[::1]),
+    ("xs", nb.float64[:, ::1]),  # (M, 3)
+    ("e", nb.float64[::1]),
+    ("col", nb.float64[::1]),
+    ("vaug", nb.float64[:, ::1]),  # (order+1, order+4)
+    ("sub", nb.int64[::1]),  # (order+1,)
+    ("m3", nb.float64[:, ::1]),  # (3, 3)
+    ("tmp", nb.float64[:, ::1]),  # (3, 3)
+    ("xp", nb.float64[::1]),  # (M,) previous fit in this window's τ
+    ("xprev", nb.float64[::1]),  # (M,) previous fit in its own τ
+    # Outputs.
+    ("vel", nb.float64[::1]),  # (3,) NED m/s
+    ("cov", nb.float64[:, ::1]),  # (3, 3) m²/s²
+    ("fout", nb.float64[::1]),  # (4,) see _F_*
+    ("iout", nb.int64[::1]),  # (5,) see _I_*
+]
+
+
+@jitclass(_STATE_SPEC)
+class _State:
+    """Every array of one estimator, allocated once by numba's runtime.
+
+    A jitclass because a plain numpy array passed from Python into compiled code gets a
+    fresh NRT meminfo on every call (one allocation per array argument); the jitclass is
+    unboxed by reference, so a push passes scalars only and allocates nothing.
+    """
+
+    def __init__(self, window: int, np_: int) -> None:
+        nw = window
+        m = 3 * np_
+        self.t = np.zeros(nw)
+        self.y = np.zeros((nw, 3))
+        self.yc = np.zeros((nw, 3))
+        self.sig = np.ones(nw)
+        self.sth = np.zeros((nw, 3, 3))
+        self.bk = np.zeros((nw, 3, 3))
+        self.w = np.zeros(nw)
+        self.acc = np.zeros(nw)
+        self.tau = np.zeros(nw)
+        self.phi = np.zeros((nw, np_))
+        self.sinv = np.zeros((nw, 3, 3))
+        self.d2 = np.zeros(nw)
+        self.srt = np.zeros(nw)
+        self.nrm = np.zeros((m, m))
+        self.meat = np.zeros((m, m))
+        self.rhs = np.zeros(m)
+        self.x = np.zeros(m)
+        self.xb = np.zeros(m)
+        self.xs = np.zeros((m, 3))
+        self.e = np.zeros(m)
+        self.col = np.zeros(m)
+        self.vaug = np.zeros((np_, np_ + 3))
+        self.sub = np.zeros(np_, dtype=np.int64)
+        self.m3 = np.zeros((3, 3))
+        self.tmp = np.zeros((3, 3))
+        self.xp = np.zeros(m)
+        self.xprev = np.zeros(m)
+        self.vel = np.zeros(3)
+        self.cov = np.zeros((3, 3))
+        self.fout = np.zeros(4)
+        self.iout = np.zeros(5, dtype=np.int64)
+
+
+# Not cached: numba cannot cache functions of jitclass arguments.  It is a thin shim; the
+# cached kernels it calls are loaded from disk.
+@nb.njit(nogil=True)
+def _push_state(st: _State, t_s: float, vx: float, vy: float, vz: float, sigma_mps: float,
+                lat_rad: float, lon_rad: float, pos_sigma_m: float, mode: int, np_: int,
+                min_epochs: int, c3: float, n_sub: int, start_crit: int,
+                max_gap_s: float) -> int:
+    return _push_kernel(st.t, st.y, st.yc, st.sig, st.sth, st.bk, st.w, st.acc, st.tau,
+                        st.phi, st.sinv, st.d2, st.srt, st.nrm, st.meat, st.rhs, st.x,
+                        st.xb, st.xs, st.e, st.col, st.vaug, st.sub, st.m3, st.tmp, st.xp,
+                        st.xprev, st.vel, st.cov, st.fout, st.iout, t_s, vx, vy, vz,
+                        sigma_mps, lat_rad, lon_rad, pos_sigma_m, mode, np_, min_epochs, c3,
+                        n_sub, start_crit, max_gap_s)
+
+
 class Mctls:
     """Robust sliding-window GNSS velocity (MCTLS); see the module docstring for the model.
 
@@ -722,13 +823,15 @@ class Mctls:
     window : epochs in the sliding window (>= min_epochs).
     order : polynomial order p of the NED velocity in time (3 = constant jerk).
     mode : "ls" (weighted LS), "tls" (constrained TLS), "mctls" (constrained TLS + robust
-        LQS start + bisquare IRLS) or "gate" (LS with a χ² innovation gate on the newest
-        epoch, the cheap alternative).
+        start + bisquare IRLS) or "gate" (LS with a χ² innovation gate on the newest epoch,
+        the cheap alternative).
     bisquare_c : scalar bisquare tuning constant; scaled by ``KAPPA_3D`` for the 3-D residual.
     min_epochs : epochs needed before an estimate is produced (>= order + 2).
     pos_sigma_m : default 1-σ horizontal position error of a fix (m): the coefficient noise
         of the ECEF→NED rotation.  ``push`` may override it per epoch (receiver h_acc).
     n_subsets : minimal subsets tried by the robust start.
+    start : robust-start criterion, "rho" (Σ bisquare ρ with the receiver's σ) or "lqs"
+        (h-th smallest d², least-median style); see the module docstring.
     max_gap_s : a larger gap between epochs (s) restarts the window.
 
     Attributes (views of internal arrays, updated in place by ``push``)
@@ -741,10 +844,12 @@ class Mctls:
 
     def __init__(self, window: int = 20, order: int = 3, mode: str = "mctls",
                  bisquare_c: float = 4.685, min_epochs: int = 8, *,
-                 pos_sigma_m: float = 10.0, n_subsets: int = 100,
+                 pos_sigma_m: float = 10.0, n_subsets: int = 100, start: str = "rho",
                  max_gap_s: float = 1.0) -> None:
         if mode not in MODES:
             raise ValueError(f"mode must be one of {sorted(MODES)}, got {mode!r}")
+        if start not in ("rho", "lqs"):
+            raise ValueError(f"start must be 'rho' or 'lqs', got {start!r}")
         if not 0 <= order <= 5:
             raise ValueError("order must be in 0..5")
         if min_epochs < order + 2:
@@ -753,6 +858,8 @@ class Mctls:
             raise ValueError("window must be >= min_epochs")
         if not bisquare_c > 0.0 or not pos_sigma_m >= 0.0 or not max_gap_s > 0.0:
             raise ValueError("bisquare_c and max_gap_s must be > 0, pos_sigma_m >= 0")
+        if n_subsets < 0:
+            raise ValueError("n_subsets must be >= 0")
         self.window = window
         self.order = order
         self.mode = mode
@@ -760,48 +867,19 @@ class Mctls:
         self.bisquare_c = bisquare_c
         self.pos_sigma_m = pos_sigma_m
         self.n_subsets = n_subsets
+        self.start = start
         self.max_gap_s = max_gap_s
         self._mode = MODES[mode]
         self._c3 = KAPPA_3D * bisquare_c
-        self._start_crit = 1
-        np_ = order + 1
-        m = 3 * np_
-        nw = window
-        self._np = np_
-        # Window data, oldest..newest (newest at index window-1).
-        self._t = np.zeros(nw)  # s
-        self._y = np.zeros((nw, 3))  # NED velocity, m/s
-        self._yc = np.zeros((nw, 3))  # B⁻¹ y, m/s
-        self._sig = np.ones(nw)  # receiver σ, m/s
-        self._sth = np.zeros((nw, 3, 3))  # Σθ, rad²
-        self._bk = np.zeros((nw, 3, 3))  # E[Exp(-δθ)]
-        self._acc = np.zeros(nw)  # gate: 1 accepted, 0 rejected
-        self.weights = np.zeros(nw)
-        # Scratch.
-        self._tau = np.zeros(nw)
-        self._phi = np.zeros((nw, np_))
-        self._sinv = np.zeros((nw, 3, 3))
-        self._d2 = np.zeros(nw)
-        self._srt = np.zeros(nw)
-        self._nrm = np.zeros((m, m))
-        self._meat = np.zeros((m, m))
-        self._rhs = np.zeros(m)
-        self._x = np.zeros(m)
-        self._xb = np.zeros(m)
-        self._xs = np.zeros((m, 3))
-        self._e = np.zeros(m)
-        self._col = np.zeros(m)
-        self._vaug = np.zeros((np_, np_ + 3))
-        self._sub = np.zeros(np_, dtype=np.int64)
-        self._m3 = np.zeros((3, 3))
-        self._tmp = np.zeros((3, 3))
-        self._xp = np.zeros(m)
-        self._xprev = np.zeros(m)
-        # Outputs.
-        self.vel_n = np.zeros(3)
-        self.cov_n = np.zeros((3, 3))
-        self._fout = np.zeros(4)
-        self._iout = np.zeros(5, dtype=np.int64)
+        self._start_crit = 1 if start == "rho" else 0
+        self._np = order + 1
+        self._st = _State(window, self._np)
+        # Boxed once: these ndarrays share memory with the jitclass' arrays.
+        self.vel_n: Arr = self._st.vel
+        self.cov_n: Arr = self._st.cov
+        self.weights: Arr = self._st.w
+        self._fout: Arr = self._st.fout
+        self._iout: IArr = self._st.iout
         self._valid = False
 
     def reset(self) -> None:
@@ -809,7 +887,6 @@ class Mctls:
         self._iout[:] = 0
         self._fout[:] = 0.0
         self.weights[:] = 0.0
-        self._acc[:] = 0.0
         self.vel_n[:] = 0.0
         self.cov_n[:] = 0.0
         self._valid = False
@@ -818,25 +895,23 @@ class Mctls:
              lon_rad: float, pos_sigma_m: float | None = None) -> bool:
         """Add one GNSS epoch; True when ``vel_n``/``cov_n`` hold a windowed estimate.
 
-        t_s : receive time, s (monotonic).  vel_ecef : (3,) ECEF velocity, m/s, float64.
+        t_s : receive time, s (monotonic).  vel_ecef : (3,) ECEF velocity, m/s.
         sigma_mps : receiver 1-σ speed accuracy, m/s.  lat_rad, lon_rad : geodetic position
         of the fix (defines C_e^n).  pos_sigma_m : this fix's 1-σ horizontal position error
-        (m), default the constructor's.  A non-finite input is ignored (returns False).
+        (m), default the constructor's.  A non-finite input is ignored (returns False and
+        leaves the window untouched).
         """
-        ps = self.pos_sigma_m if pos_sigma_m is None else pos_sigma_m
+        ps = self.pos_sigma_m if pos_sigma_m is None else float(pos_sigma_m)
+        vx = float(vel_ecef[0])
+        vy = float(vel_ecef[1])
+        vz = float(vel_ecef[2])
         if not (math.isfinite(t_s) and math.isfinite(sigma_mps) and math.isfinite(lat_rad)
-                and math.isfinite(lon_rad) and math.isfinite(ps)
-                and math.isfinite(vel_ecef[0]) and math.isfinite(vel_ecef[1])
-                and math.isfinite(vel_ecef[2])):
+                and math.isfinite(lon_rad) and math.isfinite(ps) and math.isfinite(vx)
+                and math.isfinite(vy) and math.isfinite(vz)):
             return False
-        st = _push_kernel(
-            self._t, self._y, self._yc, self._sig, self._sth, self._bk, self.weights,
-            self._acc, self._tau, self._phi, self._sinv, self._d2, self._srt, self._nrm,
-            self._meat, self._rhs, self._x, self._xb, self._xs, self._e, self._col,
-            self._vaug, self._sub, self._m3, self._tmp, self._xp, self._xprev, self.vel_n,
-            self.cov_n, self._fout, self._iout, t_s, vel_ecef, sigma_mps, lat_rad, lon_rad, ps,
-            self._mode, self._np, self.min_epochs, self._c3, self.n_subsets,
-            self._start_crit, self.max_gap_s)
+        st = _push_state(self._st, float(t_s), vx, vy, vz, float(sigma_mps), float(lat_rad),
+                         float(lon_rad), ps, self._mode, self._np, self.min_epochs, self._c3,
+                         self.n_subsets, self._start_crit, self.max_gap_s)
         self._valid = st == _ST_OK
         return self._valid
 
@@ -871,5 +946,5 @@ class Mctls:
 
     @property
     def scale(self) -> float:
-        """Robust factor (>= 1) applied to the receiver's σ in the last "mctls" solve."""
+        """Factor (>= 1) applied to the receiver's σ in the last "mctls" solve."""
         return float(self._fout[_F_SCALE])

@@ -1,0 +1,558 @@
+"""Scenario files: TOML -> validated, typed, SI :class:`Scenario`.
+
+Every value carries its unit in its key (``rate_hz``, ``arw_rad_per_sqrt_s``, ``turns[].dyaw_deg``);
+sensor-model keys are SI, geometry keys may be degrees where the key says so.  The loader
+rejects missing, mistyped and unknown keys with a :class:`ScenarioError` that names the
+field and the unit it expects, so a typo never silently falls back to a default.
+
+Overrides use dotted paths (``"gnss.jumps.enabled"``, ``"imu.rate_hz"``) and are applied to
+the raw TOML tree before validation, so they are checked exactly like file content.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import tomllib
+import types
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "DovSpec",
+    "DropoutSpec",
+    "GnssSpec",
+    "GroundSpec",
+    "ImuSpec",
+    "JumpSpec",
+    "ModulationSpec",
+    "MultirotorSpec",
+    "Scenario",
+    "ScenarioError",
+    "ShipSpec",
+    "StaticSpec",
+    "TargetEvent",
+    "TrajectorySpec",
+    "TurnEvent",
+    "VelEvent",
+    "builtin_scenarios",
+    "load_scenario",
+    "scenario_dict",
+]
+
+DEG = math.pi / 180.0
+ARCSEC = DEG / 3600.0
+
+
+class ScenarioError(ValueError):
+    """A scenario file or override is missing a field, has a wrong type/unit or bad value."""
+
+
+def _f(unit: str, default: Any = dataclasses.MISSING, doc: str = "") -> Any:
+    """Dataclass field that records its unit (for error messages and docs)."""
+    meta = {"unit": unit, "doc": doc}
+    if default is dataclasses.MISSING:
+        return field(metadata=meta)
+    if isinstance(default, (list, dict)):
+        raise TypeError("mutable default")  # pragma: no cover - programming error guard
+    return field(default=default, metadata=meta)
+
+
+# ---------------------------------------------------------------------------------------------
+# trajectory events
+# ---------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class TargetEvent:
+    """Smooth change of a scalar to an absolute target over ``[t_s, t_s + dur_s]``."""
+
+    t_s: float = _f("s")
+    dur_s: float = _f("s")
+    to: float = _f("unit of the profile (m/s for speed, deg for pitch)")
+
+
+@dataclass(frozen=True)
+class TurnEvent:
+    """Smooth heading change by ``dyaw_deg`` (positive = clockwise seen from above)."""
+
+    t_s: float = _f("s")
+    dur_s: float = _f("s")
+    dyaw_deg: float = _f("deg")
+
+
+@dataclass(frozen=True)
+class VelEvent:
+    """Smooth change of the NED velocity to an absolute target."""
+
+    t_s: float = _f("s")
+    dur_s: float = _f("s")
+    to_n_mps: float = _f("m/s")
+    to_e_mps: float = _f("m/s")
+    to_d_mps: float = _f("m/s")
+
+
+# ---------------------------------------------------------------------------------------------
+# trajectory kinds
+# ---------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _Where:
+    lat_deg: float = _f("deg")
+    lon_deg: float = _f("deg")
+    alt_m: float = _f("m")
+
+
+@dataclass(frozen=True)
+class StaticSpec(_Where):
+    """Vehicle at rest with a fixed attitude (noise studies, alignment)."""
+
+    kind: str = _f("", "static")
+    roll_deg: float = _f("deg", 0.0)
+    pitch_deg: float = _f("deg", 0.0)
+    yaw_deg: float = _f("deg", 0.0)
+
+
+@dataclass(frozen=True)
+class GroundSpec(_Where):
+    """Ground vehicle: speed, heading and road-grade profiles; body roll from lateral accel.
+
+    ``speed`` targets are in m/s, ``grade`` targets are pitch angles in deg.
+    """
+
+    kind: str = _f("", "ground")
+    yaw0_deg: float = _f("deg", 0.0)
+    speed0_mps: float = _f("m/s", 0.0)
+    speed: tuple[TargetEvent, ...] = _f("m/s (targets)", ())
+    turns: tuple[TurnEvent, ...] = _f("deg", ())
+    grade: tuple[TargetEvent, ...] = _f("deg (pitch targets)", ())
+    roll_gain_rad_per_mps2: float = _f("rad/(m/s^2)", 0.0)
+    sideslip_gain_rad_per_mps2: float = _f("rad/(m/s^2)", 0.0)
+
+
+@dataclass(frozen=True)
+class MultirotorSpec(_Where):
+    """Multirotor: NED velocity profile independent of heading; tilt follows thrust."""
+
+    kind: str = _f("", "multirotor")
+    yaw0_deg: float = _f("deg", 0.0)
+    vel: tuple[VelEvent, ...] = _f("m/s", ())
+    turns: tuple[TurnEvent, ...] = _f("deg", ())
+    drag_per_s: float = _f("1/s", 0.0, "linear drag per unit mass (tilt in steady flight)")
+
+
+@dataclass(frozen=True)
+class ModulationSpec:
+    """Single-axis rotation modulation of the IMU about body z: 0 -> 180 deg -> 0 ..."""
+
+    enabled: bool = _f("", False)
+    rate_rps: float = _f("rad/s", 18.0 * DEG)
+    dwell_s: float = _f("s", 300.0)
+    ramp_s: float = _f("s", 1.0, "raised-cosine rate ramp at each end of a rotation")
+    angle_deg: float = _f("deg", 180.0)
+
+
+@dataclass(frozen=True)
+class ShipSpec(_Where):
+    """Ship: static, smooth acceleration to a cruise speed on a course, optional sea motion."""
+
+    kind: str = _f("", "ship")
+    course_deg: float = _f("deg", 0.0)
+    static_s: float = _f("s", 0.0)
+    accel_s: float = _f("s", 120.0)
+    speed_mps: float = _f("m/s", 0.0)
+    turns: tuple[TurnEvent, ...] = _f("deg", ())
+    roll_amp_deg: float = _f("deg", 0.0)
+    roll_period_s: float = _f("s", 10.0)
+    pitch_amp_deg: float = _f("deg", 0.0)
+    pitch_period_s: float = _f("s", 7.0)
+    modulation: ModulationSpec = field(default_factory=ModulationSpec)
+
+
+TrajectorySpec = StaticSpec | GroundSpec | MultirotorSpec | ShipSpec
+_KINDS: dict[str, type[Any]] = {
+    "static": StaticSpec, "ground": GroundSpec, "multirotor": MultirotorSpec, "ship": ShipSpec,
+}
+
+
+# ---------------------------------------------------------------------------------------------
+# sensors and environment
+# ---------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class ImuSpec:
+    """IMU error model, all SI.  Constant biases and scale factors are drawn per seed."""
+
+    rate_hz: float = _f("Hz")
+    gyro_bias_sigma_rps: float = _f("rad/s")
+    accel_bias_sigma_mps2: float = _f("m/s^2")
+    arw_rad_per_sqrt_s: float = _f("rad/sqrt(s)")
+    vrw_mps_per_sqrt_s: float = _f("m/s/sqrt(s)")
+    gyro_gm_sigma_rps: float = _f("rad/s", 0.0)
+    gyro_gm_tau_s: float = _f("s", 3600.0)
+    accel_gm_sigma_mps2: float = _f("m/s^2", 0.0)
+    accel_gm_tau_s: float = _f("s", 3600.0)
+    gyro_scale_factor_sigma_ppm: float = _f("ppm", 0.0)
+    accel_scale_factor_sigma_ppm: float = _f("ppm", 0.0)
+    grade: str = _f("", "", "preset filling the keys not given (see GRADES)")
+
+
+@dataclass(frozen=True)
+class DropoutSpec:
+    start_s: float = _f("s")
+    end_s: float = _f("s")
+
+
+@dataclass(frozen=True)
+class JumpSpec:
+    """Bursts of consecutive GNSS epochs whose velocity jumps (the seed-001 outlier case)."""
+
+    enabled: bool = _f("", False)
+    bursts: int = _f("count", 5)
+    min_epochs: int = _f("epochs", 3)
+    max_epochs: int = _f("epochs", 8)
+    min_mps: float = _f("m/s", 3.0)
+    max_mps: float = _f("m/s", 5.0)
+    start_s: float = _f("s", 0.0, "bursts are placed in [start_s, end_s]")
+    end_s: float = _f("s", 1e18)
+    shared_direction: bool = _f("", False, "one direction per burst instead of per epoch")
+
+
+@dataclass(frozen=True)
+class GnssSpec:
+    """GNSS receiver model: 1-sigma per-axis noises, latency, dropouts, velocity jumps."""
+
+    rate_hz: float = _f("Hz")
+    pos_sigma_h_m: float = _f("m")
+    pos_sigma_v_m: float = _f("m")
+    vel_sigma_h_mps: float = _f("m/s")
+    vel_sigma_v_mps: float = _f("m/s")
+    pos_tau_s: float = _f("s", 0.0, "0: white position noise; > 0: Gauss-Markov")
+    latency_s: float = _f("s", 0.0)
+    dropouts: tuple[DropoutSpec, ...] = _f("s", ())
+    jumps: JumpSpec = field(default_factory=JumpSpec)
+
+
+@dataclass(frozen=True)
+class DovSpec:
+    """Truth deflection of the vertical: offset + sinusoid in time, per component."""
+
+    enabled: bool = _f("", False)
+    xi_offset_arcsec: float = _f("arcsec", 0.0)
+    xi_amp_arcsec: float = _f("arcsec", 0.0)
+    xi_period_s: float = _f("s", 36000.0)
+    xi_phase_deg: float = _f("deg", 0.0)
+    eta_offset_arcsec: float = _f("arcsec", 0.0)
+    eta_amp_arcsec: float = _f("arcsec", 0.0)
+    eta_period_s: float = _f("s", 36000.0)
+    eta_phase_deg: float = _f("deg", 0.0)
+    dg_mps2: float = _f("m/s^2", 0.0, "gravity disturbance along down, constant")
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario.  ``duration`` (s) = ``duration_s * duration_scale``."""
+
+    name: str
+    duration_s: float = field(metadata={"unit": "s"})
+    trajectory: TrajectorySpec
+    imu: ImuSpec
+    gnss: GnssSpec
+    description: str = _f("", "")
+    duration_scale: float = _f("", 1.0)
+    dov: DovSpec = field(default_factory=DovSpec)
+    source: str = _f("", "", "file it was loaded from")
+
+    @property
+    def duration(self) -> float:
+        """Effective duration, s."""
+        return self.duration_s * self.duration_scale
+
+
+# ---------------------------------------------------------------------------------------------
+# IMU grade presets (SI)
+# ---------------------------------------------------------------------------------------------
+
+_DEG_PER_H = DEG / 3600.0
+_MG = 9.80665e-3
+GRADES: dict[str, dict[str, float]] = {
+    # seed 001: 12 deg/h, 5 mg, 0.24 deg/sqrt(h), 0.3 m/s/sqrt(Hz)
+    "mems_seed001": {
+        "gyro_bias_sigma_rps": 12.0 * _DEG_PER_H,
+        "accel_bias_sigma_mps2": 5.0 * _MG,
+        "arw_rad_per_sqrt_s": 0.24 * DEG / 60.0,
+        "vrw_mps_per_sqrt_s": 0.3,
+    },
+    # seed 002 (RLG + quartz accelerometers): 0.003 deg/h, 10 mGal, 0.0005 deg/sqrt(h),
+    # 10 mGal/sqrt(Hz); its Table 2 gives the random walk per sqrt(h), Table 1's per sqrt(s)
+    # would be 60x a navigation-grade RLG.
+    "nav_seed002": {
+        "gyro_bias_sigma_rps": 0.003 * _DEG_PER_H,
+        "accel_bias_sigma_mps2": 1e-4,
+        "arw_rad_per_sqrt_s": 0.0005 * DEG / 60.0,
+        "vrw_mps_per_sqrt_s": 1e-4,
+    },
+}
+
+
+# ---------------------------------------------------------------------------------------------
+# generic typed builder
+# ---------------------------------------------------------------------------------------------
+
+def _describe(tp: Any, unit: str) -> str:
+    """Human description of what a field expects, with its unit."""
+    u = f" in {unit}" if unit else ""
+    origin = typing.get_origin(tp)
+    if tp is float:
+        return f"a number{u}"
+    if tp is int:
+        return f"an integer{u}"
+    if tp is bool:
+        return "a boolean (true/false)"
+    if tp is str:
+        return "a string"
+    if origin is tuple:
+        inner = typing.get_args(tp)[0]
+        if dataclasses.is_dataclass(inner):
+            keys = ", ".join(f"{f.name} [{f.metadata.get('unit', '')}]"
+                             for f in dataclasses.fields(inner))
+            return f"an array of tables {{{keys}}}"
+        return f"an array{u}"
+    if dataclasses.is_dataclass(tp):
+        return "a table"
+    return f"a trajectory table with kind = one of {sorted(_KINDS)}"
+
+
+def _convert(value: Any, tp: Any, path: str, unit: str) -> Any:
+    def bad() -> ScenarioError:
+        return ScenarioError(f"{path}: expected {_describe(tp, unit)}, "
+                             f"got {type(value).__name__} {value!r}")
+
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise bad()
+        x = float(value)
+        if not math.isfinite(x):
+            raise ScenarioError(f"{path}: must be finite ({_describe(tp, unit)}), got {x!r}")
+        return x
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise bad()
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise bad()
+        return value
+    if tp is str:
+        if not isinstance(value, str):
+            raise bad()
+        return value
+    origin = typing.get_origin(tp)
+    if origin is tuple:
+        if not isinstance(value, list):
+            raise bad()
+        inner = typing.get_args(tp)[0]
+        return tuple(_convert(v, inner, f"{path}[{i}]", unit) for i, v in enumerate(value))
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise bad()
+        return _build(typing.cast(type[Any], tp), value, path)
+    if origin in (types.UnionType, typing.Union):  # the trajectory kinds
+        if not isinstance(value, dict):
+            raise bad()
+        kind = value.get("kind")
+        if kind not in _KINDS:
+            raise ScenarioError(f"{path}.kind: expected one of {sorted(_KINDS)}, got {kind!r}")
+        return _build(_KINDS[kind], value, path)
+    raise TypeError(f"unsupported field type {tp!r}")  # pragma: no cover
+
+
+def _build(cls: type[Any], data: Mapping[str, Any], path: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    prefix = f"{path}." if path else ""
+    for key in data:
+        if key not in fields:
+            close = difflib.get_close_matches(key, list(fields), n=1, cutoff=0.5)
+            hint = ""
+            if close:
+                f = fields[close[0]]
+                hint = (f"; did you mean {prefix}{close[0]} "
+                        f"({_describe(hints[close[0]], f.metadata.get('unit', ''))})?")
+            raise ScenarioError(f"{prefix}{key}: unknown field{hint}")
+    kwargs: dict[str, Any] = {}
+    for name, f in fields.items():
+        unit = f.metadata.get("unit", "")
+        if name in data:
+            kwargs[name] = _convert(data[name], hints[name], prefix + name, unit)
+        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise ScenarioError(f"{prefix}{name}: missing; expected {_describe(hints[name], unit)}")
+    return cls(**kwargs)
+
+
+# ---------------------------------------------------------------------------------------------
+# semantic checks (after types are right)
+# ---------------------------------------------------------------------------------------------
+
+def _check(cond: bool, path: str, msg: str) -> None:
+    if not cond:
+        raise ScenarioError(f"{path}: {msg}")
+
+
+def _check_events(events: tuple[Any, ...], path: str) -> None:
+    end = -math.inf
+    for i, ev in enumerate(events):
+        p = f"{path}[{i}]"
+        _check(ev.dur_s > 0.0, f"{p}.dur_s", f"must be > 0 s, got {ev.dur_s}")
+        _check(ev.t_s >= end, f"{p}.t_s",
+               f"events must be in time order and not overlap (previous ends at {end} s)")
+        end = ev.t_s + ev.dur_s
+
+
+def _validate(sc: Scenario) -> None:
+    _check(sc.duration_s > 0.0, "duration_s", "must be > 0 s")
+    _check(sc.duration_scale > 0.0, "duration_scale", "must be > 0")
+    tr = sc.trajectory
+    _check(-90.0 < tr.lat_deg < 90.0, "trajectory.lat_deg", "must be in (-90, 90) deg")
+    if isinstance(tr, GroundSpec):
+        for name in ("speed", "turns", "grade"):
+            _check_events(getattr(tr, name), f"trajectory.{name}")
+        _check(tr.speed0_mps >= 0.0, "trajectory.speed0_mps", "must be >= 0 m/s")
+        for i, ev in enumerate(tr.speed):
+            _check(ev.to >= 0.0, f"trajectory.speed[{i}].to", "speed target must be >= 0 m/s")
+        for i, ev in enumerate(tr.grade):
+            _check(abs(ev.to) < 45.0, f"trajectory.grade[{i}].to", "pitch must be < 45 deg")
+    elif isinstance(tr, MultirotorSpec):
+        _check_events(tr.vel, "trajectory.vel")
+        _check_events(tr.turns, "trajectory.turns")
+        _check(tr.drag_per_s >= 0.0, "trajectory.drag_per_s", "must be >= 0 1/s")
+    elif isinstance(tr, ShipSpec):
+        _check_events(tr.turns, "trajectory.turns")
+        _check(tr.accel_s > 0.0, "trajectory.accel_s", "must be > 0 s")
+        _check(tr.speed_mps >= 0.0, "trajectory.speed_mps", "must be >= 0 m/s")
+        _check(tr.roll_period_s > 0.0, "trajectory.roll_period_s", "must be > 0 s")
+        _check(tr.pitch_period_s > 0.0, "trajectory.pitch_period_s", "must be > 0 s")
+        m = tr.modulation
+        if m.enabled:
+            _check(m.rate_rps > 0.0, "trajectory.modulation.rate_rps", "must be > 0 rad/s")
+            _check(m.dwell_s >= 0.0, "trajectory.modulation.dwell_s", "must be >= 0 s")
+            _check(m.ramp_s >= 0.0 and m.ramp_s <= abs(m.angle_deg) * DEG / m.rate_rps,
+                   "trajectory.modulation.ramp_s",
+                   "must be >= 0 s and no longer than angle/rate")
+    imu = sc.imu
+    _check(imu.rate_hz > 0.0, "imu.rate_hz", "must be > 0 Hz")
+    dt_us = 1e6 / imu.rate_hz
+    _check(abs(dt_us - round(dt_us)) < 1e-9 * dt_us, "imu.rate_hz",
+           f"1e6 / rate_hz must be a whole number of microseconds, got {dt_us} us")
+    for name in ("gyro_bias_sigma_rps", "accel_bias_sigma_mps2", "arw_rad_per_sqrt_s",
+                 "vrw_mps_per_sqrt_s", "gyro_gm_sigma_rps", "accel_gm_sigma_mps2",
+                 "gyro_scale_factor_sigma_ppm", "accel_scale_factor_sigma_ppm"):
+        _check(getattr(imu, name) >= 0.0, f"imu.{name}", "must be >= 0")
+    _check(imu.gyro_gm_tau_s > 0.0, "imu.gyro_gm_tau_s", "must be > 0 s")
+    _check(imu.accel_gm_tau_s > 0.0, "imu.accel_gm_tau_s", "must be > 0 s")
+    g = sc.gnss
+    _check(g.rate_hz > 0.0, "gnss.rate_hz", "must be > 0 Hz")
+    period_us = 1e6 / g.rate_hz
+    _check(abs(period_us - round(period_us)) < 1e-9 * period_us
+           and round(period_us) % round(dt_us) == 0, "gnss.rate_hz",
+           f"the GNSS period ({period_us} us) must be a whole multiple of the IMU interval "
+           f"({dt_us} us)")
+    for name in ("pos_sigma_h_m", "pos_sigma_v_m", "vel_sigma_h_mps", "vel_sigma_v_mps",
+                 "pos_tau_s", "latency_s"):
+        _check(getattr(g, name) >= 0.0, f"gnss.{name}", "must be >= 0")
+    for i, d in enumerate(g.dropouts):
+        _check(d.end_s > d.start_s, f"gnss.dropouts[{i}].end_s", "must be > start_s (s)")
+    j = g.jumps
+    _check(j.bursts >= 0, "gnss.jumps.bursts", "must be >= 0")
+    _check(1 <= j.min_epochs <= j.max_epochs, "gnss.jumps.min_epochs",
+           "need 1 <= min_epochs <= max_epochs (epochs)")
+    _check(0.0 <= j.min_mps <= j.max_mps, "gnss.jumps.min_mps",
+           "need 0 <= min_mps <= max_mps (m/s)")
+    _check(j.end_s > j.start_s, "gnss.jumps.end_s", "must be > start_s (s)")
+    _check(sc.dov.xi_period_s > 0.0, "dov.xi_period_s", "must be > 0 s")
+    _check(sc.dov.eta_period_s > 0.0, "dov.eta_period_s", "must be > 0 s")
+
+
+# ---------------------------------------------------------------------------------------------
+# loading
+# ---------------------------------------------------------------------------------------------
+
+def builtin_scenarios() -> list[str]:
+    """Names of the scenarios shipped in ``firmware_sim/scenarios``."""
+    root = resources.files("firmware_sim") / "scenarios"
+    return sorted(p.name[:-5] for p in root.iterdir() if p.name.endswith(".toml"))
+
+
+def _read_source(name_or_path: str | Path) -> tuple[str, str]:
+    p = Path(name_or_path)
+    # a bare name is a built-in even when a folder of that name exists (e.g. an output dir)
+    if p.suffix == ".toml" or p.is_file() or len(p.parts) > 1:
+        try:
+            return p.read_text(encoding="utf-8"), str(p)
+        except OSError as e:
+            raise ScenarioError(f"cannot read scenario file {p}: {e.strerror}") from e
+    res = resources.files("firmware_sim") / "scenarios" / f"{name_or_path}.toml"
+    if not res.is_file():
+        raise ScenarioError(f"unknown scenario {name_or_path!r}; built-in: "
+                            f"{', '.join(builtin_scenarios())} (or give a path to a .toml)")
+    return res.read_text(encoding="utf-8"), str(name_or_path)
+
+
+def _apply_override(tree: dict[str, Any], dotted: str, value: Any) -> None:
+    parts = dotted.split(".")
+    if not all(parts):
+        raise ScenarioError(f"{dotted}: bad override key")
+    node = tree
+    for i, part in enumerate(parts[:-1]):
+        nxt = node.setdefault(part, {})
+        if not isinstance(nxt, dict):
+            raise ScenarioError(f"{'.'.join(parts[: i + 1])}: is not a table, cannot set "
+                                f"{dotted}")
+        node = nxt
+    if isinstance(value, tuple):
+        value = list(value)
+    node[parts[-1]] = value
+
+
+def load_scenario(name_or_path: str | Path,
+                  overrides: Mapping[str, Any] | None = None) -> Scenario:
+    """Load and validate a scenario.
+
+    Args:
+        name_or_path: a built-in name (``"car480"``) or a path to a TOML file.
+        overrides: dotted keys to values, e.g. ``{"gnss.jumps.enabled": True}``; values are
+            TOML-typed Python values (float, int, bool, str, lists, dicts).
+
+    Raises:
+        ScenarioError: naming the offending field and the unit it expects.
+    """
+    text, source = _read_source(name_or_path)
+    try:
+        tree = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise ScenarioError(f"{source}: invalid TOML: {e}") from e
+    for key, value in (overrides or {}).items():
+        _apply_override(tree, key, value)
+    imu = tree.get("imu")
+    if isinstance(imu, dict) and isinstance(imu.get("grade"), str) and imu["grade"]:
+        preset = GRADES.get(imu["grade"])
+        if preset is None:
+            raise ScenarioError(f"imu.grade: expected one of {sorted(GRADES)} or \"\", "
+                                f"got {imu['grade']!r}")
+        tree["imu"] = {**preset, **imu}
+    tree.setdefault("source", source)
+    try:
+        sc = typing.cast(Scenario, _build(Scenario, tree, ""))
+        _validate(sc)
+    except ScenarioError as e:
+        raise ScenarioError(f"{source}: {e}") from None
+    return sc
+
+
+def scenario_dict(sc: Scenario) -> dict[str, Any]:
+    """The resolved scenario as plain data (JSON-ready; tuples become lists on dumping)."""
+    return dataclasses.asdict(sc)

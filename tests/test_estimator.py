@@ -1,0 +1,192 @@
+"""The estimator against simulator truth: convergence, consistency, outliers, bad input."""
+
+from __future__ import annotations
+
+import math
+import tracemalloc
+from functools import cache
+
+import numpy as np
+import pytest
+
+from firmware_sim import SimRun, generate, load_scenario
+from firmware_sim.score import Score, initial_heading_config, score_run
+from navd.config import EstimatorConfig, load_config
+from navd.core.chi2 import chi2_quantile
+from navd.core.estimator import Estimator
+from navd.types import GnssSample, ImuSample
+
+
+@cache
+def car(seed: int = 1, jumps: bool = False) -> SimRun:
+    return generate(load_scenario("car480", {"gnss.jumps.enabled": jumps}), seed=seed,
+                    progress=False)
+
+
+def cfg(*overrides: str) -> EstimatorConfig:
+    return EstimatorConfig.from_dict(load_config(None, list(overrides)))
+
+
+@cache
+def scored(mode: str, yaw_err: float, seed: int = 1, jumps: bool = False,
+           robust: str = "gate") -> Score:
+    run = car(seed, jumps)
+    return score_run(run, cfg(f"filter.mode={mode}", f"filter.robust={robust}",
+                              *initial_heading_config(run, yaw_err)))
+
+
+def test_completed_heading_converges_from_10_deg_and_beats_traditional() -> None:
+    comp = scored("completed", 10.0)
+    trad = scored("traditional", 10.0)
+    rc, rt = comp.rmse(60.0), trad.rmse(60.0)
+    assert rc["heading_rmse_deg"] < 0.5
+    assert abs(comp.euler_err_deg[-1, 2]) < 0.5
+    # without the course the yaw stays poorly observable on this drive
+    assert rt["heading_rmse_deg"] > 5 * rc["heading_rmse_deg"]
+    for r in (rc, rt):
+        assert r["roll_rmse_deg"] < 1.0 and r["pitch_rmse_deg"] < 1.0
+        assert r["pos_h_rmse_m"] < 5.0
+
+
+@pytest.mark.parametrize("yaw_err", [90.0, -150.0])
+def test_heading_converges_from_large_initial_error(yaw_err: float) -> None:
+    s = scored("completed", yaw_err)
+    assert s.rmse(120.0)["heading_rmse_deg"] < 0.5
+    assert bool(s.aligned[-1])
+
+
+def test_overconfident_wrong_heading_is_reset_by_course() -> None:
+    """Told heading is known to 1 deg while it is 90 deg off: the course gate keeps refusing,
+    and after ``reset_after`` refusals the yaw is reset to the course."""
+    run = car(1)
+    ov = initial_heading_config(run, 90.0)
+    ov[-1] = "init.heading_sd_deg=1.0"
+    s = score_run(run, cfg(*ov))
+    assert s.counters.get("heading_reset", 0) >= 1
+    assert s.rmse(120.0)["heading_rmse_deg"] < 0.5
+
+
+def test_filter_is_consistent_on_car480() -> None:
+    """NEES of velocity inside its chi-square band; attitude not over-confident."""
+    s = scored("completed", 10.0)
+    m = s.t_s >= 60.0
+    # errors 0.1 s apart are strongly correlated; count one independent sample per 2 s
+    k = max(1, int(m.sum() // 20))
+    lo = chi2_quantile(0.005, 3 * k) / k
+    hi = chi2_quantile(0.995, 3 * k) / k
+    assert lo < float(np.mean(s.nees_vel[m])) < hi
+    assert float(np.mean(s.nees_att[m])) < hi
+    assert np.all(np.isfinite(s.euler_sd_deg))
+
+
+def test_multirotor_never_uses_course_and_says_so() -> None:
+    run = generate(load_scenario("multirotor", {"duration_s": 120.0}), seed=2, progress=False)
+    e = Estimator(cfg("filter.profile=multirotor", *initial_heading_config(run, 0.0)))
+    s = score_run(run, e.cfg, est=e)
+    assert s.counters.get("course_accepted", 0) == 0
+    assert s.counters.get("course_rejected", 0) == 0
+    assert "multirotor" in e.status()["course_update"]  # type: ignore[operator]
+    assert s.counters["vel_accepted"] > 0
+    # and with the ground profile the same flight would have used (wrong) courses
+    e2 = Estimator(cfg("filter.profile=ground", *initial_heading_config(run, 0.0)))
+    s2 = score_run(run, e2.cfg, est=e2)
+    used = s2.counters.get("course_accepted", 0) + s2.counters.get("course_rejected", 0)
+    assert used > 0
+
+
+def test_velocity_jump_bursts_are_rejected_and_counted() -> None:
+    run = car(1, jumps=True)
+    n_out = int(np.sum(run.gnss["outlier"]))
+    assert n_out >= 10
+    s = scored("completed", 10.0, jumps=True, robust="gate")
+    rejected = (s.counters.get("vel_rejected", 0) + s.counters.get("vel_course_rejected", 0)
+                + s.counters.get("course_rejected", 0))
+    assert rejected >= 0.8 * n_out
+    clean = scored("completed", 10.0)
+    assert s.rmse(60.0)["heading_rmse_deg"] < 2.0 * clean.rmse(60.0)["heading_rmse_deg"] + 0.05
+    # with no robustness at all the jumps go straight into the state
+    raw = scored("completed", 10.0, jumps=True, robust="none")
+    assert raw.rmse(60.0)["vel_h_rmse_mps"] > s.rmse(60.0)["vel_h_rmse_mps"]
+
+
+def test_steady_state_steps_do_not_allocate() -> None:
+    run = car(1)
+    samples = list(run.samples())
+    e = Estimator(cfg("init.heading_source=config"))
+    it = iter(samples)
+    n = 0
+    for smp in it:
+        e.push(smp)
+        n += isinstance(smp, ImuSample)
+        if n >= 20000:
+            break
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        tracemalloc.reset_peak()
+        n = 0
+        for smp in it:
+            e.push(smp)
+            n += isinstance(smp, ImuSample)
+            if n >= 10000:
+                break
+        cur, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert n == 10000
+    assert peak - base < 1024
+    assert cur - base < 256
+
+
+def _finite(e: Estimator) -> bool:
+    return bool(np.all(np.isfinite(e.P)) and np.all(np.isfinite(e.mat_nb))
+                and np.all(np.isfinite(e.vel_n)) and np.all(np.isfinite(e.pos)))
+
+
+def test_bad_samples_are_counted_and_never_corrupt_the_state() -> None:
+    run = generate(load_scenario("car480", {"duration_s": 120.0}), seed=3, progress=False)
+    e = Estimator(cfg(*initial_heading_config(run, 0.0)))
+    rng = np.random.default_rng(0)
+    injected = {"nan": 0, "dup": 0, "old": 0, "absurd": 0, "gnss_nan": 0, "gnss_jump": 0}
+    last_imu: ImuSample | None = None
+    for smp in run.samples():
+        if isinstance(smp, ImuSample):
+            r = rng.random()
+            if r < 0.01:
+                e.push(ImuSample(smp.t_us, smp.dt_us, math.nan, 0.0, 0.0, 0.0, 0.0, 0.0))
+                injected["nan"] += 1
+            elif r < 0.02 and last_imu is not None:
+                e.push(last_imu)  # duplicate of the previous sample
+                injected["dup"] += 1
+            elif r < 0.03 and last_imu is not None:
+                e.push(ImuSample(last_imu.t_us - 5000, smp.dt_us, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+                injected["old"] += 1
+            elif r < 0.04:
+                e.push(ImuSample(smp.t_us, smp.dt_us, 0.0, 0.0, 0.0, 1e3, 0.0, 0.0))
+                injected["absurd"] += 1
+            e.push(smp)
+            last_imu = smp
+        else:
+            r = rng.random()
+            if r < 0.05:
+                e.push(GnssSample(smp.t_us, math.nan, smp.lon_rad, smp.alt_m, 0.0, 0.0, 0.0,
+                                  1.0, 1.0, 0.1))
+                injected["gnss_nan"] += 1
+            e.push(smp)
+            if r > 0.97 and e.initialized:
+                # a 1000 km jump one microsecond later
+                e.push(GnssSample(smp.t_us + 1, smp.lat_rad + 0.16, smp.lon_rad, smp.alt_m,
+                                  smp.vel_n, smp.vel_e, smp.vel_d, 1.0, 1.0, 0.1))
+                injected["gnss_jump"] += 1
+        assert _finite(e)
+    c = e.counters
+    assert c["imu_nonfinite"] == injected["nan"]
+    assert c["imu_duplicate"] == injected["dup"]
+    assert c["imu_out_of_order"] == injected["old"]
+    assert c["imu_out_of_range"] == injected["absurd"]
+    assert c["gnss_nonfinite"] == injected["gnss_nan"]
+    assert c["gnss_absurd_jump"] == injected["gnss_jump"]
+    sol = e.solution()
+    k = len(run.truth_t_us) - 1
+    yaw_err = (sol.yaw_rad - run.truth_euler[k, 2] + math.pi) % (2 * math.pi) - math.pi
+    assert abs(math.degrees(yaw_err)) < 1.0

@@ -1,0 +1,558 @@
+"""MAVLink adapter: simulator encoders -> wire -> navd decoder, units, encoders, links."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import socket
+from collections.abc import Iterable
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from firmware_sim.transport.mavlink_tx import MavlinkTx
+from navd.io.common import Sample
+from navd.io.mavlink import (
+    MavlinkDecoder,
+    MavlinkEncoder,
+    MavlinkInputConfig,
+    MavlinkLink,
+    MavlinkSender,
+    open_mavlink,
+    parse_mavlink_url,
+)
+from navd.types import FixType, GnssSample, ImuSample, NavSolution
+
+G0 = 9.80665
+ALL_IMU = frozenset({"HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "RAW_IMU"})
+ALL_GNSS = frozenset({"GPS_RAW_INT", "GPS_INPUT", "HIL_GPS"})
+
+
+def cfg(**kw: object) -> MavlinkInputConfig:
+    base: dict[str, object] = {"imu_messages": ALL_IMU, "gnss_messages": ALL_GNSS}
+    base.update(kw)
+    return MavlinkInputConfig(**base)  # type: ignore[arg-type]
+
+
+def feed_all(dec: MavlinkDecoder, frames: Iterable[bytes]) -> list[Sample]:
+    out: list[Sample] = []
+    for f in frames:
+        out += dec.feed_datagram(f, 0)
+    return out
+
+
+def imu_seq(n: int, dt_us: int = 1000, t0: int = 5_000_000) -> list[ImuSample]:
+    out = []
+    for i in range(n):
+        dt = dt_us * 1e-6
+        out.append(
+            ImuSample(
+                t0 + i * dt_us, dt_us,
+                0.3 * dt, -0.2 * dt + 1e-3 * i * dt, 0.05 * dt,
+                1.2 * dt, -0.4 * dt, -9.79 * dt,
+            )
+        )
+    return out
+
+
+def gnss(**kw: object) -> GnssSample:
+    base: dict[str, object] = dict(
+        t_us=7_000_000, lat_rad=math.radians(47.3977), lon_rad=math.radians(-122.2),
+        alt_m=512.25, vel_n=3.0, vel_e=4.0, vel_d=-0.5, h_acc_m=1.25, v_acc_m=2.5,
+        vel_acc_mps=0.2, fix_type=FixType.FIX_3D,
+    )
+    base.update(kw)
+    return GnssSample(**base)  # type: ignore[arg-type]
+
+
+def solution(**kw: object) -> NavSolution:
+    base: dict[str, object] = dict(
+        t_us=12_345_678,
+        quat_nb=(0.9, 0.1, -0.2, 0.3),
+        roll_rad=0.1, pitch_rad=-0.2, yaw_rad=-math.pi / 2,
+        lat_rad=math.radians(47.3977), lon_rad=math.radians(8.5456), alt_m=600.0,
+        vel_n=(1.5, -2.25, 0.5), att_sd_rad=(0.01, 0.01, 0.05),
+        gyro_bias_rps=(0.0, 0.0, 0.0), accel_bias_mps2=(0.0, 0.0, 0.0),
+        heading_aligned=True, rate_b=(0.01, -0.02, 0.03),
+    )
+    base.update(kw)
+    return NavSolution(**base)  # type: ignore[arg-type]
+
+
+def parse(frames: bytes) -> list[object]:
+    p = mav.MAVLink(None)
+    return list(p.parse_buffer(frames) or [])
+
+
+def assert_imu_close(got: ImuSample, want: ImuSample, rel: float, abs_: float = 0.0) -> None:
+    assert got.t_us == want.t_us and got.dt_us == want.dt_us
+    for name in ("dtheta_x", "dtheta_y", "dtheta_z", "dvel_x", "dvel_y", "dvel_z"):
+        assert getattr(got, name) == pytest.approx(getattr(want, name), rel=rel, abs=abs_), name
+
+
+# -- IMU round trips ---------------------------------------------------------------------------
+
+
+def test_highres_imu_round_trip_first_sample_dropped_and_counted() -> None:
+    tx, dec = MavlinkTx(), MavlinkDecoder(cfg())
+    src = imu_seq(50)
+    out = feed_all(dec, (tx.highres_imu(s) for s in src))
+    assert len(out) == 49
+    assert dec.counters["imu_first_sample"] == 1
+    for got, want in zip(out, src[1:], strict=True):
+        assert isinstance(got, ImuSample)
+        assert_imu_close(got, want, rel=1e-6)  # float32 on the wire
+
+
+def test_highres_imu_nominal_rate_keeps_first_sample() -> None:
+    tx, dec = MavlinkTx(), MavlinkDecoder(cfg(nominal_imu_rate_hz=1000.0))
+    src = imu_seq(3)
+    out = feed_all(dec, (tx.highres_imu(s) for s in src))
+    assert [s.t_us for s in out] == [s.t_us for s in src]
+    assert out[0].dt_us == 1000 and dec.counters["imu_first_sample"] == 1
+
+
+def test_highres_imu_needs_accel_and_gyro_updated_bits() -> None:
+    tx, dec = MavlinkTx(), MavlinkDecoder(cfg(nominal_imu_rate_hz=1000.0))
+    src = imu_seq(3)
+    out = feed_all(dec, [tx.highres_imu(src[0]), tx.highres_imu(src[1], fields_updated=0x7),
+                         tx.highres_imu(src[2])])
+    # The stale message is skipped; the next one covers both intervals (zero-order hold).
+    assert [s.t_us for s in out] == [src[0].t_us, src[2].t_us]
+    assert isinstance(out[1], ImuSample) and out[1].dt_us == 2000
+    assert dec.counters["imu_fields_not_updated"] == 1
+
+
+def test_scaled_imu_units_mg_and_mrad() -> None:
+    enc = mav.MAVLink(None, 1, 1)
+    dec = MavlinkDecoder(cfg())
+    frames = [
+        enc.scaled_imu_encode(1000, 0, 0, 0, 0, 0, 0, 0, 0, 0).pack(enc),
+        enc.scaled_imu_encode(1020, 1000, -500, -1000, 1000, 0, -250, 0, 0, 0).pack(enc),
+    ]
+    (s,) = feed_all(dec, frames)
+    assert isinstance(s, ImuSample)
+    assert (s.t_us, s.dt_us) == (1_020_000, 20_000)
+    assert s.dvel_x == pytest.approx(G0 * 0.02)  # 1000 mG = 1 g, not 1 m/s^2
+    assert s.dvel_y == pytest.approx(-0.5 * G0 * 0.02)
+    assert s.dtheta_x == pytest.approx(1.0 * 0.02)  # 1000 mrad/s = 1 rad/s
+    assert s.dtheta_z == pytest.approx(-0.25 * 0.02)
+
+
+def test_scaled_imu_round_trip_and_time_boot_ms_wrap() -> None:
+    tx, dec = MavlinkTx(), MavlinkDecoder(cfg())
+    t0 = (2**32 - 20) * 1000  # 20 ms before time_boot_ms wraps
+    src = imu_seq(40, dt_us=1000, t0=t0)
+    out = feed_all(dec, (tx.scaled_imu(s) for s in src))
+    assert len(out) == 39
+    assert all(s.dt_us == 1000 for s in out)
+    assert [s.t_us for s in out] == [s.t_us for s in src[1:]]  # monotonic past the wrap
+    for got, want in zip(out, src[1:], strict=True):
+        assert isinstance(got, ImuSample)
+        assert_imu_close(got, want, rel=0, abs_=1.0e-3 * 1e-3 + 1e-3 * G0 * 1e-3)
+
+
+def test_scaled_imu2_is_instance_1() -> None:
+    enc = mav.MAVLink(None, 1, 1)
+    frames = [enc.scaled_imu2_encode(t, 0, 0, -1000, 0, 0, 0, 0, 0, 0).pack(enc) for t in (10, 11)]
+    assert feed_all(MavlinkDecoder(cfg()), frames) == []  # default imu_id=0
+    out = feed_all(MavlinkDecoder(cfg(imu_id=1)), frames)
+    assert len(out) == 1 and isinstance(out[0], ImuSample)
+    assert out[0].dvel_z == pytest.approx(-G0 * 1e-3)
+
+
+def test_raw_imu_needs_scale_then_round_trips() -> None:
+    tx = MavlinkTx()
+    src = imu_seq(5)
+    gs, as_ = 1e-4, 1e-3
+    frames = [tx.raw_imu(s, gs, as_) for s in src]
+    dec = MavlinkDecoder(cfg())
+    assert feed_all(dec, frames) == []
+    assert dec.counters["raw_imu_unscaled"] == 5
+    dec = MavlinkDecoder(cfg(raw_gyro_rps_per_lsb=gs, raw_accel_mps2_per_lsb=as_))
+    out = feed_all(dec, frames)
+    assert len(out) == 4
+    for got, want in zip(out, src[1:], strict=True):
+        assert isinstance(got, ImuSample)
+        assert_imu_close(got, want, rel=0, abs_=0.5 * as_ * 1e-3 + 1e-12)
+
+
+def test_only_configured_imu_message_feeds() -> None:
+    tx = MavlinkTx()
+    src = imu_seq(3)
+    frames = [f for s in src for f in (tx.highres_imu(s), tx.scaled_imu(s))]
+    out = feed_all(MavlinkDecoder(MavlinkInputConfig()), frames)  # default: HIGHRES_IMU only
+    assert [s.t_us for s in out] == [s.t_us for s in src[1:]]
+
+
+# -- GNSS round trips --------------------------------------------------------------------------
+
+
+def test_gps_input_round_trip_with_geoid_separation() -> None:
+    g = gnss(fix_type=FixType.RTK_FIXED)
+    tx, dec = MavlinkTx(), MavlinkDecoder(cfg(geoid_sep_m=47.5))
+    (s,) = feed_all(dec, [tx.gps_input(g, geoid_sep_m=47.5)])
+    assert isinstance(s, GnssSample)
+    assert s.t_us == g.t_us and s.fix_type == FixType.RTK_FIXED
+    assert s.lat_rad == pytest.approx(g.lat_rad, abs=1e-7 * math.pi / 180)
+    assert s.lon_rad == pytest.approx(g.lon_rad, abs=1e-7 * math.pi / 180)
+    assert s.alt_m == pytest.approx(g.alt_m, abs=1e-3)  # float32 MSL + N = ellipsoid
+    assert (s.vel_n, s.vel_e, s.vel_d) == pytest.approx((3.0, 4.0, -0.5))
+    assert (s.h_acc_m, s.v_acc_m, s.vel_acc_mps) == pytest.approx((1.25, 2.5, 0.2))
+
+
+def test_gps_input_ignore_flags_give_nan_and_dop_fallback() -> None:
+    tx = MavlinkTx()
+    flags = (mav.GPS_INPUT_IGNORE_FLAG_VEL_VERT | mav.GPS_INPUT_IGNORE_FLAG_HORIZONTAL_ACCURACY
+             | mav.GPS_INPUT_IGNORE_FLAG_SPEED_ACCURACY)
+    dec = MavlinkDecoder(cfg(uere_m=4.0, default_vel_acc_mps=0.7))
+    (s,) = feed_all(dec, [tx.gps_input(gnss(), ignore_flags=flags, hdop=0.9)])
+    assert isinstance(s, GnssSample)
+    assert math.isnan(s.vel_d) and s.vel_n == pytest.approx(3.0)
+    assert s.h_acc_m == pytest.approx(0.9 * 4.0)  # GPS_INPUT hdop is unitless, not x100
+    assert s.vel_acc_mps == pytest.approx(0.7)
+
+
+def test_gps_raw_int_units_velocity_from_course_and_no_vertical() -> None:
+    tx, dec = MavlinkTx(), MavlinkDecoder(cfg())
+    (s,) = feed_all(dec, [tx.gps_raw_int(gnss())])
+    assert isinstance(s, GnssSample)
+    assert s.alt_m == pytest.approx(512.25, abs=1e-3)  # alt_ellipsoid preferred
+    assert (s.vel_n, s.vel_e) == pytest.approx((3.0, 4.0), abs=2e-4)  # cog cdeg quantised
+    assert math.isnan(s.vel_d)
+    assert (s.h_acc_m, s.v_acc_m, s.vel_acc_mps) == pytest.approx((1.25, 2.5, 0.2))
+
+
+def test_gps_raw_int_msl_fallback_and_eph_is_dop_not_metres() -> None:
+    enc = mav.MAVLink(None, 1, 1)
+    # alt 100 m MSL, no alt_ellipsoid, eph 150 (HDOP 1.5), h_acc 0 (unknown), vel unknown.
+    frame = enc.gps_raw_int_encode(
+        1_000_000, 3, 473977000, 85456000, 100_000, 150, 250, 65535, 65535, 10
+    ).pack(enc)
+    dec = MavlinkDecoder(cfg(geoid_sep_m=47.0, uere_m=3.0))
+    (s,) = feed_all(dec, [frame])
+    assert isinstance(s, GnssSample)
+    assert s.alt_m == pytest.approx(147.0)
+    assert dec.counters["gnss_alt_from_msl"] == 1
+    assert s.h_acc_m == pytest.approx(4.5) and s.v_acc_m == pytest.approx(7.5)
+    assert math.isnan(s.vel_n) and math.isnan(s.vel_e)
+    assert s.lat_rad == pytest.approx(math.radians(47.3977))
+
+
+def test_hil_gps_velocity_cm_per_s() -> None:
+    tx, dec = MavlinkTx(), MavlinkDecoder(cfg(geoid_sep_m=10.0))
+    (s,) = feed_all(dec, [tx.hil_gps(gnss(vel_n=-12.34, vel_e=0.56, vel_d=1.5), geoid_sep_m=10.0)])
+    assert isinstance(s, GnssSample)
+    assert (s.vel_n, s.vel_e, s.vel_d) == pytest.approx((-12.34, 0.56, 1.5), abs=1e-9)
+    assert s.alt_m == pytest.approx(512.25, abs=1e-3)
+
+
+# -- rejections --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("kw", "reason"),
+    [
+        ({"fix_type": FixType.FIX_2D}, "gnss_no_fix"),
+        ({"lat_rad": math.radians(91.0)}, "gnss_latlon_range"),
+        ({"alt_m": 5.0e5}, "gnss_absurd_alt"),
+        ({"vel_n": 3000.0}, "gnss_absurd_velocity"),
+        ({"vel_e": math.nan}, "gnss_nonfinite"),
+        ({"h_acc_m": math.inf}, "gnss_nonfinite"),
+        ({"t_us": 0}, "gnss_no_timestamp"),
+    ],
+)
+def test_gps_input_rejections_are_counted(kw: dict[str, object], reason: str) -> None:
+    tx, dec = MavlinkTx(), MavlinkDecoder(cfg())
+    assert feed_all(dec, [tx.gps_input(gnss(**kw))]) == []
+    assert dec.counters[reason] == 1
+
+
+@pytest.mark.parametrize(
+    ("rates", "reason"),
+    [
+        ((math.nan, 0, 0, 0, 0, -9.8), "imu_nonfinite"),
+        ((0, 0, 0, math.inf, 0, -9.8), "imu_nonfinite"),
+        ((0, 0, 0, 0, 0, -60 * G0), "imu_absurd_accel"),
+        ((40.0, 0, 0, 0, 0, -9.8), "imu_absurd_gyro"),
+    ],
+)
+def test_highres_imu_rejections_are_counted(
+    rates: tuple[float, ...], reason: str
+) -> None:
+    enc = mav.MAVLink(None, 1, 1)
+    g = rates[:3]
+    a = rates[3:]
+    bad = enc.highres_imu_encode(2000, *a, *g, 0, 0, 0, 0, 0, 0, 0, 0xFFFF).pack(enc)
+    good = [enc.highres_imu_encode(t, 0, 0, -9.8, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0xFFFF).pack(enc)
+            for t in (1000, 3000)]
+    dec = MavlinkDecoder(cfg())
+    out = feed_all(dec, [good[0], bad, good[1]])
+    assert dec.counters[reason] == 1
+    # The bad sample does not cut the time line: the next one spans its interval.
+    assert len(out) == 1 and isinstance(out[0], ImuSample) and out[0].dt_us == 2000
+
+
+def test_imu_gap_backwards_and_duplicate_time() -> None:
+    tx, dec = MavlinkTx(), MavlinkDecoder(cfg())
+    a, b, c = imu_seq(3)
+    far = ImuSample(c.t_us + 500_000, 1000, 0, 0, 0, 0, 0, -0.0098)
+    back = ImuSample(a.t_us - 10_000, 1000, 0, 0, 0, 0, 0, -0.0098)
+    out = feed_all(dec, [tx.highres_imu(s) for s in (a, b, b, c, far, back)])
+    assert [s.t_us for s in out] == [b.t_us, c.t_us]
+    assert dec.counters["imu_duplicate_time"] == 1
+    assert dec.counters["imu_gap"] == 1
+    assert dec.counters["imu_time_backwards"] == 1
+
+
+def test_zero_time_is_rejected_unless_receive_time_is_used() -> None:
+    enc = mav.MAVLink(None, 1, 1)
+    frames = [enc.highres_imu_encode(0, 0, 0, -9.8, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0xFFFF).pack(enc)
+              for _ in range(2)]
+    dec = MavlinkDecoder(cfg())
+    assert feed_all(dec, frames) == [] and dec.counters["imu_no_timestamp"] == 2
+    dec = MavlinkDecoder(cfg(use_receive_time=True))
+    out = dec.feed_datagram(frames[0], 1_000) + dec.feed_datagram(frames[1], 3_500)
+    assert len(out) == 1 and out[0].t_us == 3_500 and isinstance(out[0], ImuSample)
+    assert out[0].dt_us == 2_500
+
+
+def test_allowlist_and_sequence_loss() -> None:
+    tx_ok, tx_other = MavlinkTx(sysid=1, compid=1), MavlinkTx(sysid=2, compid=1)
+    dec = MavlinkDecoder(cfg(allow=frozenset({(1, 1)})))
+    frames = [tx_ok.gps_input(gnss(t_us=1)), tx_other.gps_input(gnss(t_us=2)),
+              tx_ok.gps_input(gnss(t_us=3))]
+    tx_ok.gps_input(gnss(t_us=4))  # a frame lost on the wire
+    frames.append(tx_ok.gps_input(gnss(t_us=5)))
+    out = feed_all(dec, frames)
+    assert [s.t_us for s in out] == [1, 3, 5]
+    assert dec.counters["not_allowed"] == 1
+    assert dec.counters["seq_lost"] == 1
+
+
+def test_repeated_fix_is_dropped() -> None:
+    # ArduPilot re-sends the last fix (same time_usec) when streaming faster than the GPS.
+    tx, dec = MavlinkTx(), MavlinkDecoder(cfg())
+    frames = [tx.gps_raw_int(gnss(t_us=t)) for t in (100, 100, 100, 200)]
+    assert [s.t_us for s in feed_all(dec, frames)] == [100, 200]
+    assert dec.counters["gnss_repeat"] == 2
+
+
+# -- framing -----------------------------------------------------------------------------------
+
+
+def test_stream_split_at_every_byte_boundary() -> None:
+    tx = MavlinkTx()
+    blob = b"".join(tx.gps_input(gnss(t_us=1_000_000 + i)) for i in range(3))
+    for cut in range(1, len(blob)):
+        dec = MavlinkDecoder(cfg())
+        out = dec.feed(blob[:cut], 0) + dec.feed(blob[cut:], 0)
+        assert [s.t_us for s in out] == [1_000_000, 1_000_001, 1_000_002], cut
+
+
+def test_stream_resyncs_after_a_lost_byte() -> None:
+    tx = MavlinkTx()
+    frames = [tx.gps_input(gnss(t_us=1_000_000 + i)) for i in range(4)]
+    damaged = frames[1][:20] + frames[1][21:]  # one byte lost inside frame 1
+    dec = MavlinkDecoder(cfg())
+    out = dec.feed(frames[0] + damaged + frames[2] + frames[3], 0)
+    # pymavlink alone would skip frame 2 together with the damaged frame.
+    assert [s.t_us for s in out] == [1_000_000, 1_000_002, 1_000_003]
+    assert dec.counters["bad_crc"] >= 1
+
+
+def test_datagram_with_truncated_frame_then_good_frame() -> None:
+    tx = MavlinkTx()
+    f1, f2 = tx.gps_input(gnss(t_us=1)), tx.gps_input(gnss(t_us=2))
+    dec = MavlinkDecoder(cfg())
+    out = dec.feed_datagram(f1[:30] + f2, 0)
+    assert [s.t_us for s in out] == [2]
+    out = dec.feed_datagram(f1[:-3], 0)
+    assert out == [] and dec.counters["truncated"] >= 1
+    f3 = tx.gps_input(gnss(t_us=3))
+    assert [s.t_us for s in dec.feed_datagram(f3, 0)] == [3]  # no state left behind
+
+
+def test_crc_corruption_is_counted() -> None:
+    tx = MavlinkTx()
+    f = bytearray(tx.gps_input(gnss()))
+    f[-1] ^= 0x55
+    dec = MavlinkDecoder(cfg())
+    assert dec.feed_datagram(bytes(f), 0) == []
+    assert dec.counters["bad_crc"] == 1
+
+
+def test_mavlink1_frames_are_accepted() -> None:
+    enc = mav.MAVLink(None, 1, 1)
+    m = enc.gps_input_encode(5, 0, 0, 0, 0, 3, 473977000, 85456000, 400.0, 1.0, 1.0,
+                             1.0, 2.0, 3.0, 0.3, 1.0, 2.0, 9)
+    (s,) = feed_all(MavlinkDecoder(cfg()), [m.pack(enc, force_mavlink1=True)])
+    assert isinstance(s, GnssSample) and s.vel_e == pytest.approx(2.0)
+
+
+# -- encoders ----------------------------------------------------------------------------------
+
+
+def test_encoders_attitude_quaternion_heartbeat_global_position() -> None:
+    enc = MavlinkEncoder(sysid=42, compid=191, geoid_sep_m=47.0)
+    sol = solution()
+    blob = (enc.encode_heartbeat() + enc.encode_attitude(sol, 1234)
+            + enc.encode_attitude_quaternion(sol, 1234)
+            + enc.encode_global_position_int(sol, 1234, home_alt_m=500.0))
+    assert blob[0] == 0xFD  # MAVLink 2
+    hb, att, q, gp = parse(blob)
+    for i, m in enumerate((hb, att, q, gp)):
+        assert (m.get_srcSystem(), m.get_srcComponent(), m.get_seq()) == (42, 191, i)  # type: ignore[attr-defined]
+    assert hb.type == mav.MAV_TYPE_ONBOARD_CONTROLLER  # type: ignore[attr-defined]
+    assert hb.autopilot == mav.MAV_AUTOPILOT_INVALID  # type: ignore[attr-defined]
+    assert att.time_boot_ms == 1234  # type: ignore[attr-defined]
+    assert (att.roll, att.pitch, att.yaw) == pytest.approx((0.1, -0.2, -math.pi / 2))  # type: ignore[attr-defined]
+    assert (att.rollspeed, att.pitchspeed, att.yawspeed) == pytest.approx((0.01, -0.02, 0.03))  # type: ignore[attr-defined]
+    assert (q.q1, q.q2, q.q3, q.q4) == pytest.approx((0.9, 0.1, -0.2, 0.3))  # type: ignore[attr-defined]
+    assert gp.lat == round(47.3977e7) and gp.lon == round(8.5456e7)  # type: ignore[attr-defined]
+    assert gp.alt == 553_000 and gp.relative_alt == 53_000  # type: ignore[attr-defined]
+    assert (gp.vx, gp.vy, gp.vz) == (150, -225, 50)  # type: ignore[attr-defined]
+    assert gp.hdg == 27000  # yaw -90 deg = west  # type: ignore[attr-defined]
+
+
+def test_global_position_rejects_non_finite() -> None:
+    with pytest.raises(ValueError):
+        MavlinkEncoder().encode_global_position_int(solution(lat_rad=math.nan), 0)
+
+
+def test_url_parsing() -> None:
+    assert parse_mavlink_url("udpin:0.0.0.0:14550").kind == "udpin"
+    assert parse_mavlink_url("udp:127.0.0.1:14550").kind == "udpin"
+    out = parse_mavlink_url("udpout:10.0.0.2:14551")
+    assert (out.kind, out.host, out.port) == ("udpout", "10.0.0.2", 14551)
+    ser = parse_mavlink_url("/dev/ttyUSB0,921600")
+    assert (ser.kind, ser.device, ser.baud) == ("serial", "/dev/ttyUSB0", 921600)
+    for bad in ("udpin:14550", "udpin:host:x", "bogus:1:2", "/dev/ttyS0,fast"):
+        with pytest.raises(ValueError):
+            parse_mavlink_url(bad)
+
+
+# -- links -------------------------------------------------------------------------------------
+
+
+async def _wait_for(pred: object, timeout_s: float = 3.0) -> None:
+    assert callable(pred)
+    async with asyncio.timeout(timeout_s):
+        while not pred():
+            await asyncio.sleep(0.005)
+
+
+def test_udp_loopback_samples_and_replies() -> None:
+    async def main() -> None:
+        got: list[Sample] = []
+        rx = await MavlinkLink.open("udpin:127.0.0.1:0", MavlinkDecoder(cfg()), got.append)
+        port = rx.local_address[1] if rx.local_address else 0
+        replies = MavlinkDecoder(cfg())
+        tx = await MavlinkLink.open(f"udpout:127.0.0.1:{port}", replies, None)
+        try:
+            assert not rx.send(b"x") and rx.counters["tx_no_peer"] == 1  # nobody yet
+            sim = MavlinkTx()
+            src = imu_seq(100)
+            for s in src:
+                assert tx.send(sim.highres_imu(s))
+            await _wait_for(lambda: len(got) >= 99)
+            assert [s.t_us for s in got] == [s.t_us for s in src[1:]]
+            # udpin answers the last sender, like pymavlink.
+            sender = MavlinkSender(rx, MavlinkEncoder(sysid=9))
+            sender.send_solution(solution())
+            assert sender.send_heartbeat()
+            await _wait_for(lambda: replies.counters["frames_ok"] >= 3)
+        finally:
+            rx.close()
+            tx.close()
+
+    asyncio.run(main())
+
+
+def test_pymavlink_client_sees_attitude() -> None:
+    """A stock pymavlink consumer (what mavlogdump.py uses) decodes our ATTITUDE."""
+    from pymavlink import mavutil
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}")
+    try:
+        enc = MavlinkEncoder(sysid=7)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as out:
+            m = None
+            for i in range(30):
+                out.sendto(enc.encode_attitude(solution(), 1000 + i), ("127.0.0.1", port))
+                m = conn.recv_match(type="ATTITUDE", blocking=True, timeout=0.1)
+                if m is not None:
+                    break
+        assert m is not None, "pymavlink did not receive ATTITUDE"
+        assert m.get_srcSystem() == 7
+        assert (m.roll, m.pitch, m.yaw) == pytest.approx((0.1, -0.2, -math.pi / 2))
+    finally:
+        conn.close()
+
+
+def test_serial_link_on_a_pty() -> None:
+    async def main() -> None:
+        master, slave = os.openpty()
+        path = os.ttyname(slave)
+        got: list[Sample] = []
+        link = await MavlinkLink.open(f"{path},921600", MavlinkDecoder(cfg()), got.append)
+        try:
+            sim = MavlinkTx()
+            blob = b"".join(sim.gps_input(gnss(t_us=100 + i)) for i in range(5))
+            os.write(master, blob[:37])
+            os.write(master, blob[37:])
+            await _wait_for(lambda: len(got) == 5)
+            assert [s.t_us for s in got] == [100, 101, 102, 103, 104]
+            hb = MavlinkEncoder().encode_heartbeat()
+            assert link.send(hb)
+            loop = asyncio.get_running_loop()
+            data = b""
+            async with asyncio.timeout(3):
+                while len(data) < len(hb):
+                    data += await loop.run_in_executor(None, os.read, master, 256)
+            assert data == hb
+        finally:
+            link.close()
+            await asyncio.sleep(0)
+            os.close(master)
+            os.close(slave)
+
+    asyncio.run(main())
+
+
+def test_tcp_client_link() -> None:
+    async def main() -> None:
+        sim = MavlinkTx()
+        received = bytearray()
+        done = asyncio.Event()
+
+        async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            for i in range(3):
+                writer.write(sim.gps_input(gnss(t_us=10 + i)))
+                await writer.drain()
+            received.extend(await reader.read(64))
+            done.set()
+            writer.close()
+
+        server = await asyncio.start_server(serve, "127.0.0.1", 0)
+        port = server.sockets[0].getsockname()[1]
+        got: list[Sample] = []
+        link = await open_mavlink(f"tcp:127.0.0.1:{port}", MavlinkDecoder(cfg()), got.append)
+        try:
+            await _wait_for(lambda: len(got) == 3)
+            hb = MavlinkEncoder().encode_heartbeat()
+            assert link.send(hb)
+            async with asyncio.timeout(3):
+                await done.wait()
+            assert bytes(received) == hb
+            assert [s.t_us for s in got] == [10, 11, 12]
+        finally:
+            link.close()
+            server.close()
+            await server.wait_closed()
+
+    asyncio.run(main())

@@ -1,0 +1,114 @@
+"""Zenoh sink: a publisher and a subscriber session on 127.0.0.1, no multicast scouting."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import socket
+from typing import Any
+
+import pytest
+import zenoh
+
+from navd.io.zenoh import (
+    SCHEMA_VERSION,
+    ZenohConfig,
+    ZenohPublisher,
+    ZenohSubscriber,
+    attitude_payload,
+)
+from navd.types import NavSolution
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def solution(**kw: object) -> NavSolution:
+    base: dict[str, object] = dict(
+        t_us=42_000_123, quat_nb=(0.9238795, 0.0, 0.0, 0.3826834),
+        roll_rad=math.radians(1.0), pitch_rad=math.radians(-2.0), yaw_rad=math.radians(45.0),
+        lat_rad=0.8, lon_rad=0.1, alt_m=500.0, vel_n=(1.0, 2.0, 0.0),
+        att_sd_rad=(math.radians(0.1), math.radians(0.1), math.radians(0.5)),
+        gyro_bias_rps=(0.0, 0.0, 0.0), accel_bias_mps2=(0.0, 0.0, 0.0),
+        heading_aligned=True, rate_b=(0.0, 0.0, 0.0),
+    )
+    base.update(kw)
+    return NavSolution(**base)  # type: ignore[arg-type]
+
+
+def test_config_is_peer_without_multicast_scouting() -> None:
+    c = ZenohConfig(vehicle="car1", listen=("tcp/127.0.0.1:1",)).to_zenoh()
+    assert json.loads(c.get_json("mode")) == "peer"
+    assert json.loads(c.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(c.get_json("listen/endpoints")) == ["tcp/127.0.0.1:1"]
+    for bad in ("a/b", "x*", ""):
+        with pytest.raises(ValueError):
+            ZenohConfig(vehicle=bad)
+
+
+def test_attitude_payload_fields_and_nan_as_null() -> None:
+    p = attitude_payload(solution(att_sd_rad=(math.nan, 0.0, math.inf)))
+    assert p["schema"] == SCHEMA_VERSION and p["t_us"] == 42_000_123
+    assert p["quat_wxyz"] == pytest.approx([0.9238795, 0.0, 0.0, 0.3826834])
+    assert p["euler_deg"] == pytest.approx([1.0, -2.0, 45.0])
+    assert p["sigma_deg"] == [None, 0.0, None] and p["aligned"] is True
+    json.dumps(p, allow_nan=False)
+
+
+def test_publish_and_receive_over_loopback() -> None:
+    async def main() -> None:
+        port = free_port()
+        vehicle = f"v{port}"
+        pub_cfg = ZenohConfig(vehicle=vehicle, listen=(f"tcp/127.0.0.1:{port}",))
+        sub_cfg = ZenohConfig(vehicle=vehicle, listen=(), connect=(f"tcp/127.0.0.1:{port}",))
+        loop = asyncio.get_running_loop()
+        with ZenohPublisher(pub_cfg) as pub, \
+                ZenohSubscriber(sub_cfg, f"navd/{vehicle}/**", loop) as sub:
+            got: dict[str, dict[str, Any]] = {}
+            async with asyncio.timeout(10):
+                # Declarations take a moment to propagate; publish until both arrive.
+                while len(got) < 2:
+                    pub.publish_attitude(solution())
+                    pub.publish_status({"mode": "completed", "imu_rate_hz": 1000.0,
+                                        "schema": 99, "bad": math.nan})
+                    try:
+                        key, obj = await sub.recv(timeout_s=0.1)
+                    except TimeoutError:
+                        continue
+                    got[key] = obj
+            att = got[f"navd/{vehicle}/attitude"]
+            assert att["schema"] == 1 and att["t_us"] == 42_000_123
+            assert att["euler_deg"] == pytest.approx([1.0, -2.0, 45.0])
+            assert att["aligned"] is True
+            st = got[f"navd/{vehicle}/status"]
+            assert st == {"mode": "completed", "imu_rate_hz": 1000.0, "schema": 1, "bad": None}
+            assert sub.counters.snapshot() == {}  # no wrong_encoding / bad_json
+            assert pub.counters["attitude_sent"] >= 1
+
+    asyncio.run(main())
+
+
+def test_subscriber_counts_non_json() -> None:
+    async def main() -> None:
+        port = free_port()
+        cfg_l = ZenohConfig(vehicle="x", listen=(f"tcp/127.0.0.1:{port}",))
+        cfg_c = ZenohConfig(vehicle="x", listen=(), connect=(f"tcp/127.0.0.1:{port}",))
+        loop = asyncio.get_running_loop()
+        raw = zenoh.open(cfg_l.to_zenoh())
+        try:
+            with ZenohSubscriber(cfg_c, "navd/x/**", loop) as sub:
+                async with asyncio.timeout(10):
+                    while sub.counters["wrong_encoding"] == 0 or sub.counters["bad_json"] == 0:
+                        raw.put("navd/x/attitude", "{}", encoding=zenoh.Encoding.TEXT_PLAIN)
+                        raw.put("navd/x/attitude", "not json",
+                                encoding=zenoh.Encoding.APPLICATION_JSON)
+                        await asyncio.sleep(0.05)
+                assert sub.queue.empty()
+        finally:
+            raw.close()  # type: ignore[no-untyped-call]
+
+    asyncio.run(main())
