@@ -463,6 +463,10 @@ def test_udp_loopback_samples_and_replies() -> None:
             sender.send_solution(solution())
             assert sender.send_heartbeat()
             await _wait_for(lambda: replies.counters["frames_ok"] >= 3)
+            before = replies.counters["frames_ok"]
+            hb_task = asyncio.create_task(sender.run_heartbeat(period_s=0.01))
+            await _wait_for(lambda: replies.counters["frames_ok"] >= before + 3)
+            hb_task.cancel()
         finally:
             rx.close()
             tx.close()

@@ -132,6 +132,8 @@ class Estimator:
         self._course_rejects = 0
         self.heading_aligned = False
         self.x[:] = 0.0
+        st.history_reset(self._buf)
+        self._imu_dt_us = 0
         self._prev_inc[:] = 0.0
         self._acc[:] = 0.0
         if self._mctls is not None:
@@ -195,8 +197,9 @@ class Estimator:
         if self._stage == _WAIT:
             self._level(s, dt)
             return False
-        st.imu_step(self._buf, s.dtheta_x, s.dtheta_y, s.dtheta_z, s.dvel_x, s.dvel_y,
-                    s.dvel_z, dt, self._coning, self._cov_interval)
+        st.imu_step(self._buf, float(s.t_us), s.dtheta_x, s.dtheta_y, s.dtheta_z, s.dvel_x,
+                    s.dvel_y, s.dvel_z, dt, self._coning, self._cov_interval)
+        self._imu_dt_us = s.dt_us
         return True
 
     def _level(self, s: ImuSample, dt: float) -> None:
@@ -281,16 +284,19 @@ class Estimator:
     # ------------------------------------------------------------------ GNSS
     def _gnss_valid(self, g: GnssSample) -> bool:
         cnt = self.counters
-        vals = (g.lat_rad, g.lon_rad, g.alt_m, g.vel_n, g.vel_e, g.vel_d)
-        if not all(math.isfinite(v) for v in vals):
+        if not (math.isfinite(g.lat_rad) and math.isfinite(g.lon_rad)
+                and math.isfinite(g.alt_m)):
             cnt["gnss_nonfinite"] += 1
             return False
         if g.fix_type < FixType.FIX_3D:
             cnt["gnss_no_fix"] += 1
             return False
+        # NaN velocity components mean "not reported" (e.g. MAVLink GPS_RAW_INT has no
+        # vertical velocity); they are handled in the update, and fail no range test here
         if (abs(g.lat_rad) > 0.5 * math.pi or abs(g.lon_rad) > 2.0 * math.pi
                 or abs(g.alt_m) > 1e5 or abs(g.vel_n) > 500.0 or abs(g.vel_e) > 500.0
-                or abs(g.vel_d) > 500.0):
+                or abs(g.vel_d) > 500.0 or math.isinf(g.vel_n) or math.isinf(g.vel_e)
+                or math.isinf(g.vel_d)):
             cnt["gnss_out_of_range"] += 1
             return False
         if self._last_gnss_t_us >= 0 and g.t_us <= self._last_gnss_t_us:
@@ -304,7 +310,11 @@ class Estimator:
         cnt = self.counters
         self._last_gnss_t_us = g.t_us
         cnt["gnss"] += 1
+        has_vel_h = math.isfinite(g.vel_n) and math.isfinite(g.vel_e)
         if self._stage == _WAIT:
+            if not has_vel_h:
+                cnt["gnss_no_velocity"] += 1
+                return False
             if self._level_fix0 is None:
                 self._level_fix0 = g
             self._pending_fix = g
@@ -312,9 +322,19 @@ class Estimator:
                 self._start_nav(g)
                 return True
             return False
-        if self.t_us >= 0 and self.t_us - g.t_us > self.cfg.gnss.max_age * 1e6:
+        age_us = self.t_us - g.t_us
+        if age_us > self.cfg.gnss.max_age * 1e6:
             cnt["gnss_too_old"] += 1
             return False
+        # A fix older than the newest IMU sample is linearised about the state at its own
+        # time of validity (history ring), not at arrival.
+        delayed = age_us * 2 > self._imu_dt_us
+        if delayed:
+            cnt["gnss_delayed"] += 1
+            if not st.history_swap(self._buf, float(g.t_us), 0.5 * self._imu_dt_us + 1.0):
+                cnt["gnss_too_old"] += 1
+                return False
+            st.history_restore(self._buf)
         c = self.cfg
         h_sd = g.h_acc_m if g.h_acc_m > 0.0 and math.isfinite(g.h_acc_m) else _DEFAULT_H_ACC
         v_sd = g.v_acc_m if g.v_acc_m > 0.0 and math.isfinite(g.v_acc_m) else _DEFAULT_V_ACC
@@ -338,11 +358,23 @@ class Estimator:
                 cnt["vel_rejected_mctls"] += 1
 
         if c.gnss.use_position:
+            self._swap_in(g.t_us, delayed)
             m = st.fill_position(self._buf, g.lat_rad, g.lon_rad, g.alt_m, h_sd, v_sd)
+            self._swap_out(delayed)
             self._apply(m, self._gate3, "pos")
-        if c.gnss.use_velocity and vel_scale > 0.0:
-            self._velocity_and_course(g, s_sd / math.sqrt(vel_scale))
+        if not has_vel_h:
+            cnt["gnss_no_velocity"] += 1
+        elif c.gnss.use_velocity and vel_scale > 0.0:
+            self._velocity_and_course(g, s_sd / math.sqrt(vel_scale), delayed)
         return True
+
+    def _swap_in(self, t_us: int, delayed: bool) -> None:
+        if delayed:
+            st.history_swap(self._buf, float(t_us), 0.5 * self._imu_dt_us + 1.0)
+
+    def _swap_out(self, delayed: bool) -> None:
+        if delayed:
+            st.history_restore(self._buf)
 
     def _mctls_weight(self, g: GnssSample, s_sd: float) -> float:
         """Feed MCTLS; return the variance divisor for this epoch's velocity (0 = skip)."""
@@ -408,12 +440,20 @@ class Estimator:
         self.course_status = "active"
         return True
 
-    def _velocity_and_course(self, g: GnssSample, s_sd: float) -> None:
+    def _fill_velocity(self, g: GnssSample, s_sd: float, delayed: bool) -> int:
+        # no vertical velocity reported: use our own with a variance that ignores it
+        vd, sd_v = (g.vel_d, s_sd) if math.isfinite(g.vel_d) else (float(self.vel_n[2]), 1e3)
+        self._swap_in(g.t_us, delayed)
+        m = st.fill_velocity(self._buf, g.vel_n, g.vel_e, vd, s_sd, sd_v)
+        return m
+
+    def _velocity_and_course(self, g: GnssSample, s_sd: float, delayed: bool) -> None:
         cnt = self.counters
         H, z = self._H, self._z
         use_course = self._course_usable(g)
-        m = st.fill_velocity(self._buf, g.vel_n, g.vel_e, g.vel_d, s_sd, s_sd)
+        m = self._fill_velocity(g, s_sd, delayed)
         if not use_course:
+            self._swap_out(delayed)
             self._apply(m, self._gate3, "vel")
             return
         # lever-arm-free GNSS velocity for the course, v_gnss - C (w x l); the velocity
@@ -421,10 +461,12 @@ class Estimator:
         vn_c = g.vel_n - (z[0] - (self.vel_n[0] - g.vel_n))
         ve_c = g.vel_e - (z[1] - (self.vel_n[1] - g.vel_e))
         if not self.heading_aligned:
+            self._swap_out(delayed)
             self._align_yaw_to_course(vn_c, ve_c, s_sd)
             return
         # course alone first: its own gate decides whether it joins the velocity update
         st.course_row(self._buf, 3, vn_c, ve_c, s_sd, self._sd_beta)
+        self._swap_out(delayed)
         zc = z[3]
         sc = H[3, 0] * H[3, 0] * self.P[0, 0] + H[3, 1] * H[3, 1] * self.P[1, 1]
         sc += 2.0 * H[3, 0] * H[3, 1] * self.P[0, 1] + self.P[2, 2]
@@ -439,12 +481,14 @@ class Estimator:
                 self.last_course_used_t_us = g.t_us
                 return
             # the joint block failed: fall back to velocity alone
-            m = st.fill_velocity(self._buf, g.vel_n, g.vel_e, g.vel_d, s_sd, s_sd)
+            m = self._fill_velocity(g, s_sd, delayed)
+            self._swap_out(delayed)
             self._apply(m, self._gate3, "vel")
             return
         cnt["course_rejected"] += 1
         self._course_rejects += 1
-        m = st.fill_velocity(self._buf, g.vel_n, g.vel_e, g.vel_d, s_sd, s_sd)
+        m = self._fill_velocity(g, s_sd, delayed)
+        self._swap_out(delayed)
         self._apply(m, self._gate3, "vel")
         if self._course_rejects >= self.cfg.heading.reset_after:
             # persistently inconsistent: the yaw is wrong beyond the linear model; reset it

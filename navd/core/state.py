@@ -15,6 +15,7 @@ import numpy.typing as npt
 from navd.core import kalman
 from navd.core._jit import jit
 from navd.core.aiding import gnss_heading, gnss_position, gnss_velocity
+from navd.core.rotation import exp_into
 
 Arr = npt.NDArray[np.float64]
 
@@ -44,7 +45,12 @@ L = 1148  # scratch (4, 4)
 PH = 1164  # scratch (15,)
 W4 = 1179  # scratch (4,)
 M3 = 1183  # scratch (3, 3)
-SIZE = 1192
+SAVE = 1192  # the present nominal state while a past one is swapped in (15,)
+HIST_LEN = 512  # past nominal states kept: 0.5 s at 1 kHz, 5 s at 100 Hz
+HIST_W = 16  # t_us, C_b^n (9), vel_n (3), pos (3)
+HIST_I = 1207  # index of the newest entry (stored as float); -1 when empty
+HIST = 1208  # ring (HIST_LEN, HIST_W)
+SIZE = HIST + HIST_LEN * HIST_W
 
 
 class StateViews:
@@ -71,19 +77,71 @@ class StateViews:
         self.z = buf[Z:Z + 4]
         self.R = buf[R:R + 16].reshape(4, 4)
         self.M = buf[M3:M3 + 9].reshape(3, 3)
+        self.hist = buf[HIST:HIST + HIST_LEN * HIST_W].reshape(HIST_LEN, HIST_W)
 
 
 @jit
-def imu_step(buf: Arr, dtx: float, dty: float, dtz: float, dvx: float, dvy: float,
-             dvz: float, dt: float, coning: bool, cov_interval: float) -> bool:
-    """:func:`navd.core.kalman.imu_step` on the buffer."""
-    return kalman.imu_step(
+def imu_step(buf: Arr, t_us: float, dtx: float, dty: float, dtz: float, dvx: float,
+             dvy: float, dvz: float, dt: float, coning: bool, cov_interval: float) -> bool:
+    """:func:`navd.core.kalman.imu_step` on the buffer, then record the state in history."""
+    done = kalman.imu_step(
         buf[MAT:MAT + 9].reshape((3, 3)), buf[VEL:VEL + 3], buf[POS:POS + 3],
         buf[DOV:DOV + 3], buf[BG:BG + 3], buf[BA:BA + 3], buf[INC:INC + 6],
         buf[PREV:PREV + 6], buf[ACC:ACC + 8], dtx, dty, dtz, dvx, dvy, dvz, dt, coning,
         cov_interval, buf[P:P + 225].reshape((15, 15)), buf[F:F + 225].reshape((15, 15)),
         buf[Q:Q + 15], buf[A:A + 225].reshape((15, 15)), buf[B:B + 225].reshape((15, 15)),
         buf[WORK:WORK + 72].reshape((8, 3, 3)), buf[RATE:RATE + 3])
+    i = int(buf[HIST_I]) + 1
+    if i >= HIST_LEN:
+        i = 0
+    buf[HIST_I] = i
+    o = HIST + i * HIST_W
+    buf[o] = t_us
+    for k in range(15):
+        buf[o + 1 + k] = buf[MAT + k]  # MAT, VEL, POS are contiguous
+    return done
+
+
+@jit
+def history_reset(buf: Arr) -> None:
+    buf[HIST_I] = -1.0
+    for i in range(HIST_LEN):
+        buf[HIST + i * HIST_W] = -1.0
+
+
+@jit
+def history_swap(buf: Arr, t_us: float, tol_us: float) -> bool:
+    """Swap in the nominal state recorded at ``t_us`` (within tol_us); False if not kept.
+
+    Measurements older than the newest IMU sample are linearised about the state at their
+    own time of validity; their correction is then applied to the present state (the error
+    state changes little over a fraction of a second).
+    """
+    i = int(buf[HIST_I])
+    if i < 0:
+        return False
+    for _ in range(HIST_LEN):
+        o = HIST + i * HIST_W
+        t = buf[o]
+        if t < 0.0:
+            return False
+        if abs(t - t_us) <= tol_us:
+            for k in range(15):
+                buf[SAVE + k] = buf[MAT + k]
+                buf[MAT + k] = buf[o + 1 + k]
+            return True
+        if t < t_us:
+            return False
+        i -= 1
+        if i < 0:
+            i = HIST_LEN - 1
+    return False
+
+
+@jit
+def history_restore(buf: Arr) -> None:
+    for k in range(15):
+        buf[MAT + k] = buf[SAVE + k]
 
 
 @jit
@@ -98,7 +156,28 @@ def update(buf: Arr, m: int, gate: float) -> float:
 
 @jit
 def inject(buf: Arr) -> None:
-    """:func:`navd.core.kalman.inject` of the error state into the nominal state."""
+    """Fold the error state into the nominal state and into the recorded history.
+
+    The history must carry the correction too, or a later delayed measurement would be
+    linearised about a state that no longer matches the present one.
+    """
+    e = buf[WORK + 36:WORK + 45].reshape((3, 3))
+    exp_into(e, buf[X], buf[X + 1], buf[X + 2])
+    n = int(buf[HIST_I])
+    if n >= 0:
+        for i in range(HIST_LEN):
+            o = HIST + i * HIST_W
+            if buf[o] < 0.0:
+                continue
+            for c in range(3):
+                a0 = buf[o + 1 + c]
+                a1 = buf[o + 4 + c]
+                a2 = buf[o + 7 + c]
+                for r in range(3):
+                    buf[o + 1 + 3 * r + c] = e[r, 0] * a0 + e[r, 1] * a1 + e[r, 2] * a2
+            for k in range(3):
+                buf[o + 10 + k] -= buf[X + 3 + k]
+                buf[o + 13 + k] -= buf[X + 6 + k]
     kalman.inject(buf[X:X + 15], buf[MAT:MAT + 9].reshape((3, 3)), buf[VEL:VEL + 3],
                   buf[POS:POS + 3], buf[BG:BG + 3], buf[BA:BA + 3],
                   buf[WORK:WORK + 72].reshape((8, 3, 3)))

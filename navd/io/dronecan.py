@@ -193,7 +193,7 @@ class DronecanDecoder:
             if payload is None:
                 return []
             sample = self._decode(*payload)
-        except Exception as exc:
+        except Exception as exc:  # bus input must never kill the daemon
             self._reject("decode_error", "%s: %s", type(exc).__name__, exc)
             return []
         if sample is None:

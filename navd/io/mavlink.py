@@ -213,7 +213,7 @@ class MavlinkDecoder:
                 if s is not None:
                     out.append(s)
                 m = self._mav.parse_char(b"")
-        except Exception as exc:
+        except Exception as exc:  # wire input must never kill the daemon
             self._reject("parser_error", "%s: %s", type(exc).__name__, exc)
             self._mav = self._new_parser()
         return out

@@ -366,12 +366,11 @@ def _start_crit(s0: int, nw: int, d2: Arr, srt: Arr, h: int, c3: float, crit: in
 
 @jit
 def _robust_start(s0: int, nw: int, np_: int, phi: Arr, yc: Arr, sinv: Arr, d2: Arr,
-                  srt: Arr, vaug: Arr, sub: IArr, x: Arr, xb: Arr, xp: Arr, has_prev: bool,
-                  n_sub: int, h: int, c3: float, crit: int) -> float:
+                  srt: Arr, vaug: Arr, sub: IArr, x: Arr, xb: Arr, n_sub: int, h: int,
+                  c3: float, crit: int) -> float:
     """Best of several candidate fits by ``_start_crit``; leaves its coefficients in ``xb``.
 
-    Candidates: ``x`` (the plain GLS fit, on entry), ``xp`` (the previous window's robust fit
-    in this window's τ, when ``has_prev``) and fits interpolating minimal subsets.
+    Candidates: ``x`` (the plain GLS fit, on entry) and fits interpolating minimal subsets.
     Returns the winner's score.
     """
     m = 3 * np_
@@ -380,13 +379,6 @@ def _robust_start(s0: int, nw: int, np_: int, phi: Arr, yc: Arr, sinv: Arr, d2: 
     best = _start_crit(s0, nw, d2, srt, h, c3, crit)
     for r in range(m):
         xb[r] = x[r]
-    if has_prev:
-        _mahal(s0, nw, np_, phi, xp, yc, sinv, d2)
-        sc = _start_crit(s0, nw, d2, srt, h, c3, crit)
-        if sc < best:
-            best = sc
-            for r in range(m):
-                xb[r] = xp[r]
     state = _SEED
     min_span = (n - 1) // 2
     tried = 0
@@ -601,12 +593,30 @@ def _solve(t: Arr, y: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, acc: Arr, tau: A
         if has_prev:
             hp = fout[_F_H_PREV]
             _reexpress(xp, xprev, np_, span / hp, (t[k] - fout[_F_T_PREV]) / hp)
-        _robust_start(s0, nw, np_, phi, obs, sinv, d2, srt, vaug, sub, x, xb, xp, has_prev,
-                      n_sub, h, c3, start_crit)
+        _robust_start(s0, nw, np_, phi, obs, sinv, d2, srt, vaug, sub, x, xb, n_sub, h, c3,
+                      start_crit)
         for r in range(m):
             x[r] = xb[r]
         its = _irls(s0, nw, np_, phi, obs, sig, sth, bk, w, sinv, d2, nrm, rhs, x, m3, tmp,
                     1.0, use_coef, c3)
+        if has_prev:
+            # The previous solution is a second start, polished and compared on the same
+            # objective: it keeps a long run of jumps rejected as the run grows, while a
+            # better fit (e.g. one that re-admits a clean epoch) still wins when there is one.
+            j1 = _start_crit(s0, nw, d2, srt, h, c3, 1) if its >= 0 else math.inf
+            for r in range(m):
+                xb[r] = x[r]
+                x[r] = xp[r]
+            its2 = _irls(s0, nw, np_, phi, obs, sig, sth, bk, w, sinv, d2, nrm, rhs, x, m3,
+                         tmp, 1.0, use_coef, c3)
+            j2 = _start_crit(s0, nw, d2, srt, h, c3, 1) if its2 >= 0 else math.inf
+            if j1 < j2:
+                for r in range(m):
+                    x[r] = xb[r]
+                its = _irls(s0, nw, np_, phi, obs, sig, sth, bk, w, sinv, d2, nrm, rhs, x,
+                            m3, tmp, 1.0, use_coef, c3)
+            else:
+                its = its2
         if its < 0:
             return _ST_SINGULAR
         # An optimistic receiver σ shows as inlier residuals too large for their degrees of
