@@ -102,3 +102,20 @@ class NavSolution:
     accel_bias_mps2: tuple[float, float, float]
     heading_aligned: bool
     rate_b: tuple[float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class PolSample:
+    """A zenith skylight-polarization reading (DESIGN §7).
+
+    Attributes:
+        t_us: sensor time stamp, integer microseconds (same clock as the IMU).
+        aop_rad: angle of polarization of the E-vector in the sensor frame, rad, in [0, pi).
+        dop: degree of polarization, 0..1.
+        utc_unix_s: UTC of the reading (POSIX seconds, leap seconds removed), for the sun.
+    """
+
+    t_us: int
+    aop_rad: float
+    dop: float
+    utc_unix_s: float

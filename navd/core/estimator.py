@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+import numpy.typing as npt
 
 from navd.config import EstimatorConfig
 from navd.core import state as st
@@ -28,12 +29,29 @@ from navd.core.chi2 import chi2_quantile
 from navd.core.earth import geodetic_to_ecef, mat_ne_into, radii
 from navd.core.output import attitude_outputs
 from navd.core.rotation import euler_to_mat_into, exp_into, mat_to_euler, mul3_into
-from navd.types import FixType, GnssSample, ImuSample, NavSolution
+from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample
 
 if TYPE_CHECKING:
     from navd.core.aiding.mctls import Mctls
 
-Sample = ImuSample | GnssSample
+Sample = ImuSample | GnssSample | PolSample
+
+
+class DovField(Protocol):
+    """A deflection-of-the-vertical model evaluated along the track (navd.core.aiding.dov)."""
+
+    def eval_into(self, lat_rad: float, lon_rad: float, out: npt.NDArray[np.float64]) -> bool:
+        """Write (xi_rad, eta_rad, dg_d_mps2) into ``out``; False when off the model's area
+        (``out`` is then zeroed: normal gravity)."""
+        ...
+
+
+class PolAiding(Protocol):
+    """Skylight-polarization heading aiding (navd.core.aiding.polarization)."""
+
+    def update(self, est: Estimator, sample: PolSample) -> None:
+        """Fuse one reading into ``est`` (through est.fuse_block) or count why not."""
+        ...
 
 _WAIT = 0
 _NAV = 1
@@ -59,8 +77,12 @@ class Estimator:
         heading_aligned: heading came from config or a trusted GNSS course.
     """
 
-    def __init__(self, config: EstimatorConfig | None = None) -> None:
+    def __init__(self, config: EstimatorConfig | None = None, dov_field: DovField | None = None,
+                 pol: PolAiding | None = None) -> None:
         self.cfg = config or EstimatorConfig()
+        self.dov_field = dov_field
+        self.dov_on_grid = False
+        self.pol = pol
         c = self.cfg
         self._buf = np.zeros(st.SIZE)
         v = st.StateViews(self._buf)
@@ -154,8 +176,39 @@ class Estimator:
             return self._push_imu(sample)
         if isinstance(sample, GnssSample):
             return self._push_gnss(sample)
+        if isinstance(sample, PolSample):
+            if self.pol is None:
+                self.counters["pol_no_aiding_configured"] += 1
+                return False
+            if self._stage != _NAV:
+                self.counters["pol_before_nav"] += 1
+                return False
+            n = self.counters["pol_accepted"]
+            self.pol.update(self, sample)
+            return self.counters["pol_accepted"] > n
         self.counters["unknown_sample"] += 1
         return False
+
+    def fuse_block(self, m: int, chi2_gate: float, name: str) -> float:
+        """Apply the measurement block already written to H, z, R (first m rows) with a gate.
+
+        For aiding modules outside this file: fill ``self.meas_H`` (4, 15), ``self.meas_z``
+        (4,), ``self.meas_R`` (4, 4) for the present nominal state, then call this.  Counts
+        ``<name>_accepted`` / ``<name>_rejected`` and returns the NIS (negative if refused).
+        """
+        return self._apply(m, chi2_gate, name)
+
+    @property
+    def meas_H(self) -> npt.NDArray[np.float64]:
+        return self._H
+
+    @property
+    def meas_z(self) -> npt.NDArray[np.float64]:
+        return self._z
+
+    @property
+    def meas_R(self) -> npt.NDArray[np.float64]:
+        return self._R
 
     # ------------------------------------------------------------------ IMU
     def _push_imu(self, s: ImuSample) -> bool:
@@ -335,6 +388,11 @@ class Estimator:
                 cnt["gnss_too_old"] += 1
                 return False
             st.history_restore(self._buf)
+        if self.dov_field is not None:
+            self.dov_on_grid = self.dov_field.eval_into(float(self.pos[0]), float(self.pos[1]),
+                                                        self.dov)
+            if not self.dov_on_grid:
+                cnt["dov_off_grid"] += 1
         c = self.cfg
         h_sd = g.h_acc_m if g.h_acc_m > 0.0 and math.isfinite(g.h_acc_m) else _DEFAULT_H_ACC
         v_sd = g.v_acc_m if g.v_acc_m > 0.0 and math.isfinite(g.v_acc_m) else _DEFAULT_V_ACC
@@ -545,6 +603,8 @@ class Estimator:
             "gyro_bias_dph": [float(b) * 180.0 / math.pi * 3600.0 for b in self.bias_g],
             "accel_bias_mg": [float(b) / 9.80665e-3 for b in self.bias_a],
             "dov_arcsec": [float(self.dov[0]) * 206264.806, float(self.dov[1]) * 206264.806],
+            "dov_model": ("off" if self.dov_field is None else
+                          "on grid" if self.dov_on_grid else "off grid: normal gravity"),
         }
 
     def ecef_position(self) -> tuple[float, float, float]:

@@ -508,7 +508,7 @@ def _raw_output(k: int, obs: Arr, sig: Arr, sth: Arr, bk: Arr, sinv: Arr, m3: Ar
 def _solve(t: Arr, y: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, acc: Arr, tau: Arr, phi: Arr,
            sinv: Arr, d2: Arr, srt: Arr, nrm: Arr, meat: Arr, rhs: Arr, x: Arr, xb: Arr,
            xs: Arr, e: Arr, col: Arr, vaug: Arr, sub: IArr, m3: Arr, tmp: Arr, xp: Arr,
-           xprev: Arr, vel: Arr, cov: Arr, fout: Arr, iout: IArr, obs: Arr, use_coef: bool,
+           xprev: Arr, xbest: Arr, wb: Arr, vel: Arr, cov: Arr, fout: Arr, iout: IArr, obs: Arr, use_coef: bool,
            mode: int, np_: int, c3: float, n_sub: int, start_crit: int, s0: int, k: int,
            count: int) -> int:
     """Fit the full window (count >= min_epochs) per ``mode``; status code."""
@@ -595,28 +595,49 @@ def _solve(t: Arr, y: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, acc: Arr, tau: A
             _reexpress(xp, xprev, np_, span / hp, (t[k] - fout[_F_T_PREV]) / hp)
         _robust_start(s0, nw, np_, phi, obs, sinv, d2, srt, vaug, sub, x, xb, n_sub, h, c3,
                       start_crit)
-        for r in range(m):
-            x[r] = xb[r]
-        its = _irls(s0, nw, np_, phi, obs, sig, sth, bk, w, sinv, d2, nrm, rhs, x, m3, tmp,
-                    1.0, use_coef, c3)
-        if has_prev:
-            # The previous solution is a second start, polished and compared on the same
-            # objective: it keeps a long run of jumps rejected as the run grows, while a
-            # better fit (e.g. one that re-admits a clean epoch) still wins when there is one.
-            j1 = _start_crit(s0, nw, d2, srt, h, c3, 1) if its >= 0 else math.inf
-            for r in range(m):
-                xb[r] = x[r]
-                x[r] = xp[r]
-            its2 = _irls(s0, nw, np_, phi, obs, sig, sth, bk, w, sinv, d2, nrm, rhs, x, m3,
-                         tmp, 1.0, use_coef, c3)
-            j2 = _start_crit(s0, nw, d2, srt, h, c3, 1) if its2 >= 0 else math.inf
-            if j1 < j2:
+        # Polished starts compared on the M-objective Σρ (what IRLS descends; its minima are
+        # nearly flat between "this epoch is the outlier" and "that one is"): (1) the best
+        # of LS and the subsets; (2) the previous solution, which keeps a long run of jumps
+        # rejected as it grows; (3) the winner with the newest epoch re-admitted, so that a
+        # clean epoch is not rejected merely because a noisy neighbour bent the cubic's end.
+        jbest = math.inf
+        for cand in range(3):
+            if cand == 0:
                 for r in range(m):
                     x[r] = xb[r]
-                its = _irls(s0, nw, np_, phi, obs, sig, sth, bk, w, sinv, d2, nrm, rhs, x,
-                            m3, tmp, 1.0, use_coef, c3)
+            elif cand == 1:
+                if not has_prev:
+                    continue
+                for r in range(m):
+                    x[r] = xp[r]
             else:
-                its = its2
+                if jbest == math.inf or wb[k] > 0.0:
+                    continue
+                for i in range(s0, nw):
+                    w[i] = wb[i]
+                w[k] = 1.0
+                if not (_fill_sinv(s0, nw, np_, phi, xbest, True, obs, sig, sth, bk, sinv, m3,
+                                   tmp, 1.0, use_coef)
+                        and _gls(s0, nw, np_, phi, obs, w, sinv, nrm, rhs, x)):
+                    continue
+            its = _irls(s0, nw, np_, phi, obs, sig, sth, bk, w, sinv, d2, nrm, rhs, x, m3,
+                        tmp, 1.0, use_coef, c3)
+            if its < 0:
+                continue
+            j = _start_crit(s0, nw, d2, srt, h, c3, 1)
+            if j < jbest:
+                jbest = j
+                for r in range(m):
+                    xbest[r] = x[r]
+                for i in range(s0, nw):
+                    wb[i] = w[i]
+        if jbest == math.inf:
+            return _ST_SINGULAR
+        # Re-polish the winner so that w, S_k, d² and the factor all belong to it.
+        for r in range(m):
+            x[r] = xbest[r]
+        its = _irls(s0, nw, np_, phi, obs, sig, sth, bk, w, sinv, d2, nrm, rhs, x, m3, tmp,
+                    1.0, use_coef, c3)
         if its < 0:
             return _ST_SINGULAR
         # An optimistic receiver σ shows as inlier residuals too large for their degrees of
@@ -655,7 +676,8 @@ def _solve(t: Arr, y: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, acc: Arr, tau: A
 def _push_kernel(t: Arr, y: Arr, yc: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, acc: Arr,
                  tau: Arr, phi: Arr, sinv: Arr, d2: Arr, srt: Arr, nrm: Arr, meat: Arr,
                  rhs: Arr, x: Arr, xb: Arr, xs: Arr, e: Arr, col: Arr, vaug: Arr, sub: IArr,
-                 m3: Arr, tmp: Arr, xp: Arr, xprev: Arr, vel: Arr, cov: Arr, fout: Arr,
+                 m3: Arr, tmp: Arr, xp: Arr, xprev: Arr, xbest: Arr, wb: Arr, vel: Arr,
+                 cov: Arr, fout: Arr,
                  iout: IArr, t_s: float, vx: float, vy: float, vz: float, sigma_mps: float,
                  lat_rad: float, lon_rad: float, pos_sigma_m: float, mode: int, np_: int,
                  min_epochs: int, c3: float, n_sub: int, start_crit: int,
@@ -717,8 +739,8 @@ def _push_kernel(t: Arr, y: Arr, yc: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, a
         return _ST_FILLING
 
     st = _solve(t, y, sig, sth, bk, w, acc, tau, phi, sinv, d2, srt, nrm, meat, rhs, x, xb,
-                xs, e, col, vaug, sub, m3, tmp, xp, xprev, vel, cov, fout, iout, obs, use_coef,
-                mode, np_, c3, n_sub, start_crit, s0, k, count)
+                xs, e, col, vaug, sub, m3, tmp, xp, xprev, xbest, wb, vel, cov, fout, iout, obs,
+                use_coef, mode, np_, c3, n_sub, start_crit, s0, k, count)
     if st != _ST_OK:
         _raw_output(k, obs, sig, sth, bk, sinv, m3, tmp, vel, cov, use_coef)
         for i in range(s0, nw):
@@ -757,6 +779,8 @@ _STATE_SPEC = [
     ("tmp", nb.float64[:, ::1]),  # (3, 3)
     ("xp", nb.float64[::1]),  # (M,) previous fit in this window's τ
     ("xprev", nb.float64[::1]),  # (M,) previous fit in its own τ
+    ("xbest", nb.float64[::1]),  # (M,) best polished start
+    ("wb", nb.float64[::1]),  # (W,) its weights
     # Outputs.
     ("vel", nb.float64[::1]),  # (3,) NED m/s
     ("cov", nb.float64[:, ::1]),  # (3, 3) m²/s²
@@ -804,6 +828,8 @@ class _State:
         self.tmp = np.zeros((3, 3))
         self.xp = np.zeros(m)
         self.xprev = np.zeros(m)
+        self.xbest = np.zeros(m)
+        self.wb = np.zeros(nw)
         self.vel = np.zeros(3)
         self.cov = np.zeros((3, 3))
         self.fout = np.zeros(4)
@@ -820,9 +846,9 @@ def _push_state(st: _State, t_s: float, vx: float, vy: float, vz: float, sigma_m
     return _push_kernel(st.t, st.y, st.yc, st.sig, st.sth, st.bk, st.w, st.acc, st.tau,
                         st.phi, st.sinv, st.d2, st.srt, st.nrm, st.meat, st.rhs, st.x,
                         st.xb, st.xs, st.e, st.col, st.vaug, st.sub, st.m3, st.tmp, st.xp,
-                        st.xprev, st.vel, st.cov, st.fout, st.iout, t_s, vx, vy, vz,
-                        sigma_mps, lat_rad, lon_rad, pos_sigma_m, mode, np_, min_epochs, c3,
-                        n_sub, start_crit, max_gap_s)
+                        st.xprev, st.xbest, st.wb, st.vel, st.cov, st.fout, st.iout, t_s, vx,
+                        vy, vz, sigma_mps, lat_rad, lon_rad, pos_sigma_m, mode, np_,
+                        min_epochs, c3, n_sub, start_crit, max_gap_s)
 
 
 class Mctls:
