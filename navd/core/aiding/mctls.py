@@ -508,9 +508,9 @@ def _raw_output(k: int, obs: Arr, sig: Arr, sth: Arr, bk: Arr, sinv: Arr, m3: Ar
 def _solve(t: Arr, y: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, acc: Arr, tau: Arr, phi: Arr,
            sinv: Arr, d2: Arr, srt: Arr, nrm: Arr, meat: Arr, rhs: Arr, x: Arr, xb: Arr,
            xs: Arr, e: Arr, col: Arr, vaug: Arr, sub: IArr, m3: Arr, tmp: Arr, xp: Arr,
-           xprev: Arr, xbest: Arr, wb: Arr, vel: Arr, cov: Arr, fout: Arr, iout: IArr, obs: Arr, use_coef: bool,
-           mode: int, np_: int, c3: float, n_sub: int, start_crit: int, s0: int, k: int,
-           count: int) -> int:
+           xprev: Arr, xbest: Arr, wb: Arr, vel: Arr, cov: Arr, fout: Arr, iout: IArr,
+           obs: Arr, use_coef: bool, mode: int, np_: int, c3: float, n_sub: int,
+           start_crit: int, s0: int, k: int, count: int) -> int:
     """Fit the full window (count >= min_epochs) per ``mode``; status code."""
     nw = t.shape[0]
     span = t[k] - t[s0]
@@ -677,8 +677,8 @@ def _push_kernel(t: Arr, y: Arr, yc: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, a
                  tau: Arr, phi: Arr, sinv: Arr, d2: Arr, srt: Arr, nrm: Arr, meat: Arr,
                  rhs: Arr, x: Arr, xb: Arr, xs: Arr, e: Arr, col: Arr, vaug: Arr, sub: IArr,
                  m3: Arr, tmp: Arr, xp: Arr, xprev: Arr, xbest: Arr, wb: Arr, vel: Arr,
-                 cov: Arr, fout: Arr,
-                 iout: IArr, t_s: float, vx: float, vy: float, vz: float, sigma_mps: float,
+                 cov: Arr, fout: Arr, iout: IArr, t_s: float, vx: float, vy: float, vz: float,
+                 sigma_mps: float,
                  lat_rad: float, lon_rad: float, pos_sigma_m: float, mode: int, np_: int,
                  min_epochs: int, c3: float, n_sub: int, start_crit: int,
                  max_gap_s: float) -> int:

@@ -1,0 +1,172 @@
+"""The daemon's outputs.  A sink reads NavSolutions (never estimator state) on its own
+:class:`~navd.record.OutputSchedule`, and keeps receive -> send latency statistics.
+
+MavlinkSink    ATTITUDE + ATTITUDE_QUATERNION (+ GLOBAL_POSITION_INT), HEARTBEAT task
+ZenohSink      navd/<vehicle>/attitude per output, navd/<vehicle>/status from the daemon
+DronecanSink   uavcan.equipment.ahrs.Solution on the input bus
+CallbackSink   hands solutions to a function (tests, embedding)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from navd.io.dronecan import DronecanEncoder, DronecanLink
+from navd.io.mavlink import MavlinkEncoder, MavlinkLink, MavlinkSender
+from navd.io.zenoh import ZenohPublisher
+from navd.record import OutputSchedule
+from navd.types import NavSolution
+
+__all__ = ["CallbackSink", "DronecanSink", "LatencyStats", "MavlinkSink", "Sink", "ZenohSink"]
+
+
+class LatencyStats:
+    """Receive -> send latency of the last ``window`` outputs (ns in, µs out), plus all-time
+    count and maximum.  A ring buffer: constant memory however long the daemon runs."""
+
+    __slots__ = ("_buf", "_i", "count", "max_ns")
+
+    def __init__(self, window: int = 4096) -> None:
+        self._buf: list[int] = [0] * window
+        self._i = 0
+        self.count = 0
+        self.max_ns = 0
+
+    def add(self, ns: int) -> None:
+        self._buf[self._i] = ns
+        self._i = (self._i + 1) % len(self._buf)
+        self.count += 1
+        if ns > self.max_ns:
+            self.max_ns = ns
+
+    def recent_us(self) -> list[float]:
+        """The window, sorted, in µs (the buffer fills from index 0 before it wraps)."""
+        n = min(self.count, len(self._buf))
+        return sorted(v * 1e-3 for v in self._buf[:n])
+
+    def summary(self) -> dict[str, float | int]:
+        v = self.recent_us()
+        if not v:
+            return {"n": 0}
+
+        def pct(p: float) -> float:
+            return round(v[min(len(v) - 1, int(p * len(v)))], 1)
+
+        return {"n": self.count, "window": len(v), "p50_us": pct(0.50), "p90_us": pct(0.90),
+                "p99_us": pct(0.99), "max_window_us": round(v[-1], 1),
+                "max_us": round(self.max_ns * 1e-3, 1)}
+
+
+class Sink:
+    """Base: a name, an output schedule, latency stats, publish/close."""
+
+    name = "sink"
+
+    def __init__(self, rate_hz: float) -> None:
+        self.schedule = OutputSchedule(rate_hz)
+        self.latency = LatencyStats()
+        self.published = 0
+
+    def publish(self, sol: NavSolution) -> None:
+        raise NotImplementedError
+
+    def counters(self) -> dict[str, int]:
+        return {"published": self.published}
+
+    def close(self) -> None:
+        pass
+
+
+class MavlinkSink(Sink):
+    """ATTITUDE and friends on a MAVLink link; HEARTBEAT from :meth:`run_heartbeat`."""
+
+    name = "mavlink"
+
+    def __init__(self, link: MavlinkLink, encoder: MavlinkEncoder, rate_hz: float, *,
+                 quaternion: bool, global_position: bool, own_link: bool) -> None:
+        super().__init__(rate_hz)
+        self.link = link
+        self.sender = MavlinkSender(link, encoder, send_quaternion=quaternion,
+                                    send_global_position=global_position)
+        self._own_link = own_link
+
+    def publish(self, sol: NavSolution) -> None:
+        self.sender.send_solution(sol)
+        self.published += 1
+
+    async def run_heartbeat(self, period_s: float, system_status: Callable[[], int]) -> None:
+        await self.sender.run_heartbeat(period_s, system_status)
+
+    def counters(self) -> dict[str, int]:
+        c = self.link.counters.snapshot() if self._own_link else {}
+        # a shared link's counters are the decoder's, already reported under inputs
+        return {**{k: v for k, v in c.items() if k.startswith(("tx_", "link_"))},
+                "published": self.published}
+
+    def close(self) -> None:
+        if self._own_link:
+            self.link.close()
+
+
+MAV_STATE_STANDBY: int = mavlink.MAV_STATE_STANDBY
+MAV_STATE_ACTIVE: int = mavlink.MAV_STATE_ACTIVE
+MAV_STATE_CRITICAL: int = mavlink.MAV_STATE_CRITICAL
+
+
+class ZenohSink(Sink):
+    name = "zenoh"
+
+    def __init__(self, publisher: ZenohPublisher, rate_hz: float) -> None:
+        super().__init__(rate_hz)
+        self.publisher = publisher
+
+    def publish(self, sol: NavSolution) -> None:
+        self.publisher.publish_attitude(sol)
+        self.published += 1
+
+    def publish_status(self, status: Mapping[str, Any]) -> None:
+        self.publisher.publish_status(status)
+
+    def counters(self) -> dict[str, int]:
+        return {**self.publisher.counters.snapshot(), "published": self.published}
+
+    def close(self) -> None:
+        self.publisher.close()
+
+
+class DronecanSink(Sink):
+    """Solution frames on the (shared) input bus; the bus belongs to the sources."""
+
+    name = "dronecan"
+
+    def __init__(self, link: DronecanLink, encoder: DronecanEncoder, rate_hz: float) -> None:
+        super().__init__(rate_hz)
+        self.link = link
+        self.encoder = encoder
+        self.failed = 0
+
+    def publish(self, sol: NavSolution) -> None:
+        if self.link.send(self.encoder.encode_solution(sol)):
+            self.published += 1
+        else:
+            self.failed += 1
+
+    def counters(self) -> dict[str, int]:
+        return {"published": self.published, "tx_failed": self.failed}
+
+
+class CallbackSink(Sink):
+    name = "callback"
+
+    def __init__(self, fn: Callable[[NavSolution], None], rate_hz: float,
+                 name: str = "callback") -> None:
+        super().__init__(rate_hz)
+        self.fn = fn
+        self.name = name
+
+    def publish(self, sol: NavSolution) -> None:
+        self.fn(sol)
+        self.published += 1
