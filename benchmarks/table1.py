@@ -77,13 +77,14 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['roll_rmse_deg']:>8.3f}{r['vel_h_rmse_mps']:>8.3f}{r['pos_h_rmse_m']:>8.2f}"
               f"{r['heading_rmse_worst_run_deg']:>11.3f}"
               f"{r['heading_rmse_after_60s_deg']:>9.3f}   {paper}")
-    print("units: deg, deg, deg, m/s, m, deg, deg (hdg>60s: RMSE after convergence).  targets (completed): heading <= 0.2, "
-          "pitch/roll <= 0.35, with jumps heading within 1.2x of clean")
+    print("units: deg, deg, deg, m/s, m, deg, deg (hdg>60s: RMSE after convergence)")
+    print("targets (completed): heading <= 0.2, pitch/roll <= 0.35, "
+          "with jumps heading within 1.2x of clean")
     clean = {(r["mode"], r["robust"]): r for r in records if not r["outliers"]}
     for r in records:
         if r["outliers"]:
             c = clean[(r["mode"], r["robust"])]
-            ratio = float(r["heading_rmse_deg"]) / float(c["heading_rmse_deg"])  # type: ignore[arg-type]
+            ratio = float(str(r["heading_rmse_deg"])) / float(str(c["heading_rmse_deg"]))
             print(f"  jumps/clean heading ratio {r['mode']}+{r['robust']}: {ratio:.2f}")
     print(f"({time.perf_counter() - t_start:.0f} s)")
     if a.json:

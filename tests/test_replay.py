@@ -48,7 +48,8 @@ def test_csv_replay_matches_direct_push(run_dir: tuple[Path, list[str]], tmp_pat
     assert int(last["t_us"]) == sol.t_us
     assert float(last["yaw_deg"]) == pytest.approx(math.degrees(sol.yaw_rad), abs=2e-6)
     # the solution tracks the truth
-    truth = {int(r["t_us"]): r for r in csv.DictReader(open(d / "truth.csv", newline=""))}
+    with open(d / "truth.csv", newline="") as fh:
+        truth = {int(r["t_us"]): r for r in csv.DictReader(fh)}
     errs = [abs((float(r["yaw_deg"]) - float(truth[int(r["t_us"])]["yaw_deg"]) + 180) % 360
                 - 180) for r in rows[len(rows) // 2:]]
     assert max(errs) < 1.0
