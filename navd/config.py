@@ -159,6 +159,7 @@ class InitSection:
     heading_source: str = field(default="gnss_course", metadata={"kind": "str"})
     heading: float = _f(0.0, "deg")
     heading_sd: float = _f(10.0, "deg")
+    aligned_sd: float = _f(2.0, "deg")
     tilt_sd: float = _f(2.0, "deg")
     vel_sd: float = _f(0.5, "mps")
     pos_sd: float = _f(10.0, "m")

@@ -235,3 +235,13 @@ def test_delayed_gnss_is_fused_at_its_time_of_validity() -> None:
     # 0.2 s at 10-24 m/s is metres of along-track error when fused at arrival
     assert rms_ok < 1.0
     assert rms_bad > 2.0 * rms_ok
+
+
+def test_traditional_mode_aligns_from_first_course_and_flags_it() -> None:
+    run = car(1)
+    e = Estimator(cfg("filter.mode=traditional", "init.heading_source=gnss_course"))
+    s = score_run(run, e.cfg, est=e)
+    assert e.counters["heading_aligned_from_course"] == 1
+    assert bool(s.aligned[-1])
+    assert s.counters.get("course_accepted", 0) == 0  # aligned once, never a course update
+    assert abs(s.euler_err_deg[-1, 2]) < 10.0

@@ -301,9 +301,11 @@ class Estimator:
         if src == "config":
             yaw = c.init.heading
             self.heading_aligned = True
-        elif src == "gnss_course" and speed >= c.heading.align_speed:
+        elif (src == "gnss_course" and speed >= c.heading.align_speed
+              and c.filter.profile != "multirotor"):
             yaw = math.atan2(fix.vel_e, fix.vel_n)
             self.heading_aligned = True
+            self.counters["heading_aligned_from_course"] += 1
         euler_to_mat_into(self.mat_nb, roll, pitch, yaw)
         self.pos[0] = fix.lat_rad
         self.pos[1] = fix.lon_rad
@@ -509,10 +511,18 @@ class Estimator:
         cnt = self.counters
         H, z = self._H, self._z
         use_course = self._course_usable(g)
+        if (not use_course and not self.heading_aligned
+                and self.cfg.init.heading_source == "gnss_course"
+                and self.cfg.filter.profile != "multirotor"
+                and math.hypot(g.vel_n, g.vel_e) >= self.cfg.heading.align_speed):
+            # Without course updates the first fast course still beats a yaw of zero as a
+            # starting point (crab makes it coarse: keep the yaw variance wide).
+            self._align_yaw_to_course(g.vel_n, g.vel_e, s_sd, extra_sd=self.cfg.init.heading_sd)
         m = self._fill_velocity(g, s_sd, delayed)
         if not use_course:
             self._swap_out(delayed)
             self._apply(m, self._gate3, "vel")
+            self._check_observed_heading()
             return
         # lever-arm-free GNSS velocity for the course, v_gnss - C (w x l); the velocity
         # innovation just computed is v_hat + C (w x l) - v_gnss
@@ -553,7 +563,14 @@ class Estimator:
             self._align_yaw_to_course(vn_c, ve_c, s_sd)
             cnt["heading_reset"] += 1
 
-    def _align_yaw_to_course(self, vn: float, ve: float, s_sd: float) -> None:
+    def _check_observed_heading(self) -> None:
+        """Flag heading aligned once manoeuvres made the yaw observable (sigma small)."""
+        if not self.heading_aligned and self.P[2, 2] < self.cfg.init.aligned_sd**2:
+            self.heading_aligned = True
+            self.counters["heading_aligned_by_observability"] += 1
+
+    def _align_yaw_to_course(self, vn: float, ve: float, s_sd: float,
+                             extra_sd: float = 0.0) -> None:
         """Rotate the attitude about down so yaw equals the course; reset yaw covariance."""
         _, _, yaw = mat_to_euler(self.mat_nb)
         chi = math.atan2(ve, vn)
@@ -567,7 +584,7 @@ class Estimator:
         P[2, :] = 0.0
         P[:, 2] = 0.0
         sd = s_sd / math.hypot(vn, ve)
-        P[2, 2] = sd * sd + self._sd_beta**2 + (1.0 * math.pi / 180.0) ** 2
+        P[2, 2] = sd * sd + self._sd_beta**2 + (1.0 * math.pi / 180.0) ** 2 + extra_sd**2
         self._course_rejects = 0
         if not self.heading_aligned:
             self.counters["heading_aligned_from_course"] += 1
