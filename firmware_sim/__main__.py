@@ -3,6 +3,9 @@
     firmware-sim generate --scenario car480 --seed 1 --out runs/car480-1 [--plot]
                           [--set gnss.jumps.enabled=true --set duration_s=60] [--force]
     firmware-sim list
+    firmware-sim stream --scenario car480 --transport mavlink|dronecan --rate-factor K
+                        [--target udp:127.0.0.1:14560] [--interface socketcan --channel vcan0]
+                        [--seed N] [--set duration_s=60] [--truth-out FILE]
 
 The run is written into a hidden temporary directory beside ``--out`` and renamed into place
 only when every file is complete, so a failure never leaves a half-written output folder.
@@ -100,6 +103,68 @@ def cmd_list(_: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_stream(args: argparse.Namespace) -> int:
+    import signal
+
+    from firmware_sim.run import generate
+    from firmware_sim.stream import (
+        dronecan_events,
+        mavlink_events,
+        stream_dronecan,
+        stream_mavlink_udp,
+        write_truth_attitude,
+    )
+
+    if args.rate_factor < 0:
+        print("firmware-sim: --rate-factor must be >= 0 (0 = as fast as possible)",
+              file=sys.stderr)
+        return EXIT_USAGE
+    sc = load_scenario(args.scenario, parse_set(args.set))
+    run = generate(sc, args.seed)
+    if args.truth_out:
+        write_truth_attitude(run, args.truth_out)
+    # SIGTERM ends the stream like Ctrl-C: print what was sent, exit quietly
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    what = (f"{sc.name} -> {args.target}" if args.transport == "mavlink"
+            else f"{sc.name} -> {args.interface}:{args.channel}")
+    if not args.quiet:
+        print(f"firmware-sim: streaming {what} at x{args.rate_factor:g} "
+              f"({sc.duration:.0f} s of sensor time)", file=sys.stderr)
+    try:
+        if args.transport == "mavlink":
+            try:
+                events = mavlink_events(run, args.imu_message, args.gnss_message,
+                                        args.sysid, args.compid)
+                st = stream_mavlink_udp(events, args.target, args.rate_factor)
+            except ValueError as exc:
+                print(f"firmware-sim: {exc}", file=sys.stderr)
+                return EXIT_USAGE
+        else:
+            import can
+
+            try:
+                bus = can.Bus(interface=args.interface, channel=args.channel)
+            except (can.CanError, OSError, ValueError) as exc:
+                print(f"firmware-sim: cannot open CAN {args.interface}:{args.channel}: {exc}",
+                      file=sys.stderr)
+                return 1
+            try:
+                st = stream_dronecan(dronecan_events(run, args.node_id), bus,
+                                     args.rate_factor)
+            finally:
+                bus.shutdown()
+    except KeyboardInterrupt:
+        if not args.quiet:
+            print("firmware-sim: stream interrupted", file=sys.stderr)
+        return 130
+    if not args.quiet:
+        print(f"firmware-sim: sent {st.imu} IMU + {st.gnss} GNSS messages ({st.packets} "
+              f"{'datagrams' if args.transport == 'mavlink' else 'CAN frames'}) in "
+              f"{st.wall_s:.1f} s; worst lateness {st.max_late_s * 1e3:.1f} ms",
+              file=sys.stderr)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="firmware-sim", description=__doc__.splitlines()[0]
                                 if __doc__ else None)
@@ -116,6 +181,30 @@ def build_parser() -> argparse.ArgumentParser:
     g.set_defaults(func=cmd_generate)
     ls = sub.add_parser("list", help="list the built-in scenarios")
     ls.set_defaults(func=cmd_list)
+    st = sub.add_parser("stream", help="send a scenario over MAVLink UDP or DroneCAN in "
+                        "(scaled) real time")
+    st.add_argument("--scenario", required=True, help="built-in name or path to a .toml file")
+    st.add_argument("--transport", choices=["mavlink", "dronecan"], default="mavlink")
+    st.add_argument("--rate-factor", type=float, default=1.0,
+                    help="sensor seconds per wall second: 1 real time, 0 as fast as possible")
+    st.add_argument("--target", default="udp:127.0.0.1:14560",
+                    help="MAVLink: UDP destination udp:HOST:PORT")
+    st.add_argument("--imu-message", default="HIGHRES_IMU",
+                    choices=["HIGHRES_IMU", "SCALED_IMU"])
+    st.add_argument("--gnss-message", default="GPS_INPUT",
+                    choices=["GPS_INPUT", "GPS_RAW_INT", "HIL_GPS"])
+    st.add_argument("--sysid", type=int, default=1, help="MAVLink source system ID")
+    st.add_argument("--compid", type=int, default=1, help="MAVLink source component ID")
+    st.add_argument("--interface", default="socketcan", help="DroneCAN: python-can interface")
+    st.add_argument("--channel", default="vcan0", help="DroneCAN: python-can channel")
+    st.add_argument("--node-id", type=int, default=42, help="DroneCAN: sensor node ID")
+    st.add_argument("--seed", type=int, default=1, help="non-negative integer seed")
+    st.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a scenario field, e.g. duration_s=60")
+    st.add_argument("--truth-out", metavar="FILE",
+                    help="write truth position/attitude CSV here before streaming")
+    st.add_argument("--quiet", action="store_true", help="no start/summary lines")
+    st.set_defaults(func=cmd_stream)
     return p
 
 

@@ -16,7 +16,7 @@ from firmware_sim.profiles import build_profile, dov_profile
 from firmware_sim.scenario import DEG, Scenario
 from firmware_sim.sensors import corrupt_imu, simulate_gnss
 from firmware_sim.truth import build_truth
-from navd.types import FixType, GnssSample, ImuSample
+from navd.types import FixType, GnssSample, ImuSample, PolSample
 
 Arr = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -53,6 +53,9 @@ class SimRun:
         accel_scale: (3,) accelerometer scale-factor error drawn (dimensionless).
         gyro_gm_rps: (N, 3) Gauss-Markov gyro bias per interval, rad/s.
         accel_gm_mps2: (N, 3) Gauss-Markov accelerometer bias per interval, m/s^2.
+        pol: polarization readings when the scenario has an enabled ``[polarization]``
+            sensor (columns of :data:`firmware_sim.polarization.POL_COLUMNS` plus
+            ``truth_idx``), else None.
     """
 
     scenario: Scenario
@@ -75,6 +78,7 @@ class SimRun:
     accel_scale: Arr
     gyro_gm_rps: Arr
     accel_gm_mps2: Arr
+    pol: dict[str, npt.NDArray[Any]] | None = None
 
     @property
     def imu_dt_s(self) -> float:
@@ -99,13 +103,46 @@ class SimRun:
             yield GnssSample(t, lat[i], lon[i], alt, vn, ve, vd, ha, va, vacc,
                              FixType.FIX_3D, (x, y, z), (vx, vy, vz))
 
-    def samples(self) -> Iterator[ImuSample | GnssSample]:
-        """IMU and GNSS merged in arrival order.
+    def pol_samples(self) -> Iterator[PolSample]:
+        """Polarization readings in time order (none without a polarization sensor)."""
+        if self.pol is None:
+            return
+        p = self.pol
+        for t, a, d, u in zip(p["t_us"].tolist(), p["aop_rad"].tolist(), p["dop"].tolist(),
+                              p["utc_unix_s"].tolist(), strict=True):
+            yield PolSample(t, a, d, u)
+
+    def samples(self) -> Iterator[ImuSample | GnssSample | PolSample]:
+        """IMU, GNSS and polarization readings merged in arrival order.
 
         A GNSS fix arrives ``latency`` after its time of validity and is delivered right after
         the last IMU sample stamped at or before its arrival (so with zero latency it follows
-        the IMU sample of the same ``t_us``).
+        the IMU sample of the same ``t_us``).  A polarization reading follows the IMU sample
+        of its own ``t_us`` (after any GNSS fix delivered there).
         """
+        if self.pol is not None:
+            yield from self._merge_pol(self._imu_gnss())
+            return
+        yield from self._imu_gnss()
+
+    def _merge_pol(self, stream: Iterator[ImuSample | GnssSample]
+                   ) -> Iterator[ImuSample | GnssSample | PolSample]:
+        pol = list(self.pol_samples())
+        j = 0
+        m = len(pol)
+        pending_t = -1
+        for s in stream:
+            if isinstance(s, ImuSample):
+                while j < m and pending_t >= 0 and pol[j].t_us <= pending_t:
+                    yield pol[j]
+                    j += 1
+                pending_t = s.t_us
+            yield s
+        while j < m:
+            yield pol[j]
+            j += 1
+
+    def _imu_gnss(self) -> Iterator[ImuSample | GnssSample]:
         after = np.searchsorted(self.imu_t_us, self.gnss["t_arrival_us"], side="right")
         order = np.argsort(after, kind="stable")
         gnss = list(self.gnss_samples())
@@ -161,6 +198,12 @@ def generate(scenario: Scenario, seed: int, progress: bool = False) -> SimRun:
         bar.update()
         bar.set_postfix_str(stages[3])
         gnss, gidx = simulate_gnss(t_us, truth.pos, truth.vel_n, T0_US, scenario.gnss, seed)
+        pol = None
+        if scenario.polarization.enabled:
+            from firmware_sim.polarization import simulate_polarization
+
+            pol = simulate_polarization(t_us, truth.mat_nb, truth.pos, T0_US, dt_us,
+                                        scenario.polarization, seed)
         bar.update()
     finally:
         bar.close()
@@ -171,5 +214,5 @@ def generate(scenario: Scenario, seed: int, progress: bool = False) -> SimRun:
         truth_euler=truth.euler, truth_dov=truth.dov, gyro_bias_rps=err.gyro_bias_rps,
         accel_bias_mps2=err.accel_bias_mps2, gyro_scale=err.gyro_scale,
         accel_scale=err.accel_scale, gyro_gm_rps=err.gyro_gm_rps,
-        accel_gm_mps2=err.accel_gm_mps2,
+        accel_gm_mps2=err.accel_gm_mps2, pol=pol,
     )

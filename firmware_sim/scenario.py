@@ -32,6 +32,7 @@ __all__ = [
     "JumpSpec",
     "ModulationSpec",
     "MultirotorSpec",
+    "PolarizationSpec",
     "Scenario",
     "ScenarioError",
     "ShipSpec",
@@ -254,6 +255,27 @@ class DovSpec:
 
 
 @dataclass(frozen=True)
+class PolarizationSpec:
+    """Zenith skylight-polarization sensor (firmware_sim.polarization): Rayleigh sky.
+
+    Sensor frame: x/y in the detector plane, boresight along -z (a zero mounting on an FRD
+    body looks up).  ``mount_*_deg`` is the true sensor -> body rotation (ZYX).  The AoP
+    noise is ``aop_sigma_deg * dop_max / DoP`` (white), the DoP noise ``dop_sigma``.
+    """
+
+    enabled: bool = _f("", False)
+    start_utc: str = _f("ISO 8601 UTC", "2020-06-01T10:12:00Z", "UTC at sensor time 0")
+    rate_hz: float = _f("Hz", 10.0)
+    aop_sigma_deg: float = _f("deg", 0.2, "AoP noise at DoP = dop_max")
+    dop_max: float = _f("", 0.7, "degree of polarization at 90 deg scattering angle")
+    dop_sigma: float = _f("", 0.01)
+    mount_roll_deg: float = _f("deg", 0.0)
+    mount_pitch_deg: float = _f("deg", 0.0)
+    mount_yaw_deg: float = _f("deg", 0.0)
+    dark_sun_elevation_deg: float = _f("deg", -8.0, "below this the sky is dark: DoP = 0")
+
+
+@dataclass(frozen=True)
 class Scenario:
     """A validated scenario.  ``duration`` (s) = ``duration_s * duration_scale``."""
 
@@ -265,6 +287,7 @@ class Scenario:
     description: str = _f("", "")
     duration_scale: float = _f("", 1.0)
     dov: DovSpec = field(default_factory=DovSpec)
+    polarization: PolarizationSpec = field(default_factory=PolarizationSpec)
     source: str = _f("", "", "file it was loaded from")
 
     @property
@@ -473,6 +496,21 @@ def _validate(sc: Scenario) -> None:
     _check(0.0 <= j.min_mps <= j.max_mps, "gnss.jumps.min_mps",
            "need 0 <= min_mps <= max_mps (m/s)")
     _check(j.end_s > j.start_s, "gnss.jumps.end_s", "must be > start_s (s)")
+    pol = sc.polarization
+    if pol.enabled:
+        from firmware_sim.polarization import parse_utc
+
+        try:
+            parse_utc(pol.start_utc)
+        except ValueError as e:
+            raise ScenarioError(f"polarization.start_utc: {e}") from None
+        _check(pol.rate_hz > 0.0 and round(1e6 / pol.rate_hz) % round(dt_us) == 0,
+               "polarization.rate_hz",
+               f"the polarization period must be a whole multiple of the IMU interval "
+               f"({dt_us} us)")
+        _check(pol.aop_sigma_deg >= 0.0 and pol.dop_sigma >= 0.0, "polarization.aop_sigma_deg",
+               "noises must be >= 0")
+        _check(0.0 < pol.dop_max <= 1.0, "polarization.dop_max", "must be in (0, 1]")
     _check(sc.dov.xi_period_s > 0.0, "dov.xi_period_s", "must be > 0 s")
     _check(sc.dov.eta_period_s > 0.0, "dov.eta_period_s", "must be > 0 s")
 

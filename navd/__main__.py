@@ -6,9 +6,11 @@ import importlib
 import sys
 
 _COMMANDS = {
-    "replay": ("navd.replay", "run the estimator over recorded CSV data"),
+    "replay": ("navd.replay", "run the estimator over recorded CSV data or flight logs"),
     "run": ("navd.daemon", "run the daemon (sources, estimator, sinks from config)"),
     "demo": ("navd.demo", "simulator -> MAVLink -> daemon -> Zenoh, live errors vs truth"),
+    "dov-grid": ("navd.dov_cli", "deflection-of-the-vertical grid from a gravity model (EGM96)"),
+    "report": ("navd.report", "HTML evaluation (figures, RMS/percentiles) of a replay"),
 }
 
 

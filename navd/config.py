@@ -194,7 +194,7 @@ class HeadingSection:
 @dataclass(frozen=True)
 class MctlsSection:
     window: int = field(default=20, metadata={"kind": "int"})
-    order: int = field(default=3, metadata={"kind": "int"})
+    order: int = field(default=2, metadata={"kind": "int"})
     min_weight: float = _f(0.2, "")
 
 

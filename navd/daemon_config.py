@@ -40,8 +40,13 @@ class DaemonSection:
     warm_up: bool = True
     record: str = ""
     log_level: str = "info"
+    event_loop: str = "auto"
+    rx_buffer_bytes: int = 1 << 20
 
     def validate(self) -> None:
+        _check(self.event_loop in ("auto", "uvloop", "asyncio"), "daemon", "event_loop",
+               'one of "auto", "uvloop", "asyncio"')
+        _check(self.rx_buffer_bytes >= 0, "daemon", "rx_buffer_bytes", "a byte count >= 0")
         _check(self.queue_size >= 16, "daemon", "queue_size", "an integer >= 16 (samples)")
         _check(0.05 <= self.status_period_s <= 3600.0, "daemon", "status_period_s",
                "a number of seconds in [0.05, 3600]")
@@ -78,16 +83,14 @@ class MavlinkSection:
 
     def validate(self) -> None:
         s = "mavlink"
-        for key in ("listen", "send"):
-            url = getattr(self, key)
-            if url in ("", "same") and key == "send":
-                continue
-            if url == "" and key == "listen":
+        for key, url in (("listen", self.listen), ("send", self.send)):
+            if url in ("", "same"):
                 continue
             try:
                 parse_mavlink_url(url)
             except ValueError as exc:
                 raise ConfigError(f"[{s}] {key}: {exc}") from None
+        _check(self.listen != "same", s, "listen", 'a link address or "" (not "same")')
         if self.send == "same" and not self.listen:
             raise ConfigError(f'[{s}] send = "same" needs a listen link')
         _check(1 <= self.sysid <= 255, s, "sysid", "an integer 1..255")
@@ -193,6 +196,9 @@ class ZenohSection:
                            multicast_scouting=self.multicast_scouting)
 
 
+# sections other parts of navd read (navd.setup: [dov]; polarization aid: [polarization])
+_OTHER_SECTIONS = frozenset({"dov", "polarization"})
+
 _SECTIONS: dict[str, type[Any]] = {
     "daemon": DaemonSection,
     "mavlink": MavlinkSection,
@@ -214,7 +220,7 @@ class DaemonConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> DaemonConfig:
-        known = set(_SECTIONS) | {f.name for f in fields(EstimatorConfig)}
+        known = set(_SECTIONS) | _OTHER_SECTIONS | {f.name for f in fields(EstimatorConfig)}
         unknown = sorted(set(data) - known)
         if unknown:
             raise ConfigError(f"unknown config section(s) {unknown}; expected some of "

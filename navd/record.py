@@ -17,6 +17,7 @@ File layout (little-endian)::
             v_acc_m, vel_acc_mps), uint8 fix_type, uint8 flags
             (bit 0: ECEF position follows, bit 1: ECEF velocity follows), then 3 x float64
             for each present vector (m, m/s)
+      b"P"  int64 t_us, 3 x float64 (aop_rad, dop, utc_unix_s)
 
 Floats are stored as IEEE doubles, so nothing is rounded (NaN payloads included).  A record
 cut short at the end (the daemon was killed mid-write) ends the stream; it is reported by
@@ -35,7 +36,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, BinaryIO, TextIO
 
 from navd import __version__
-from navd.types import FixType, GnssSample, ImuSample, NavSolution
+from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample
 
 if TYPE_CHECKING:
     from navd.core.estimator import Estimator
@@ -58,10 +59,11 @@ _LEN = struct.Struct("<I")
 _IMU = struct.Struct("<qq6d")
 _GNSS = struct.Struct("<q9dBB")
 _VEC3 = struct.Struct("<3d")
+_POL = struct.Struct("<q3d")
 _HAS_POS = 1
 _HAS_VEL = 2
 
-Sample = ImuSample | GnssSample
+Sample = ImuSample | GnssSample | PolSample
 
 
 class RecordingError(ValueError):
@@ -114,7 +116,7 @@ class RecordingWriter:
         if isinstance(s, ImuSample):
             self._fh.write(b"I" + _IMU.pack(s.t_us, s.dt_us, s.dtheta_x, s.dtheta_y,
                                             s.dtheta_z, s.dvel_x, s.dvel_y, s.dvel_z))
-        else:
+        elif isinstance(s, GnssSample):
             flags = (_HAS_POS if s.pos_ecef_m is not None else 0) | (
                 _HAS_VEL if s.vel_ecef_mps is not None else 0)
             parts = [b"G", _GNSS.pack(s.t_us, s.lat_rad, s.lon_rad, s.alt_m, s.vel_n, s.vel_e,
@@ -125,6 +127,8 @@ class RecordingWriter:
             if s.vel_ecef_mps is not None:
                 parts.append(_VEC3.pack(*s.vel_ecef_mps))
             self._fh.write(b"".join(parts))
+        else:
+            self._fh.write(b"P" + _POL.pack(s.t_us, s.aop_rad, s.dop, s.utc_unix_s))
         self.records += 1
 
     def flush(self) -> None:
@@ -202,6 +206,12 @@ class RecordingReader:
                 off += need
                 yield GnssSample(t, lat, lon, alt, vn, ve, vd, ha, va, sa, FixType(fix), pos,
                                  vel)
+            elif kind == b"P":
+                if off + 1 + _POL.size > end:
+                    break
+                t, aop, dop, utc = _POL.unpack_from(d, off + 1)
+                off += 1 + _POL.size
+                yield PolSample(t, aop, dop, utc)
             else:
                 raise RecordingError(f"{self.path}: bad record type {kind!r} at byte {off}")
         self.truncated_bytes = end - off

@@ -7,20 +7,29 @@ Output rows are written at every GNSS epoch that the estimator consumed and at a
 from __future__ import annotations
 
 import argparse
+import contextlib
+import copy
 import sys
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from navd.config import ConfigError, EstimatorConfig, load_config
+from navd.config import ConfigError, EstimatorConfig, load_config, parse_override
 from navd.core.estimator import Estimator
 from navd.io.replay import ReadReport, ReplayFormatError, SolutionWriter, merge, read_gnss, read_imu
 from navd.types import GnssSample, ImuSample
 
+if TYPE_CHECKING:
+    from navd.io.logs import AidingWriter
+
 
 def run_replay(est: Estimator, samples: Iterable[ImuSample | GnssSample], writer: SolutionWriter,
                rate_hz: float = 50.0, progress_total: int | None = None,
-               progress: bool = False) -> int:
-    """Push every sample; write solutions; return the number of rows written."""
+               progress: bool = False, aiding: AidingWriter | None = None) -> int:
+    """Push every sample; write solutions; return the number of rows written.
+
+    ``aiding``: also write one row per GNSS epoch on what the filter did with it.
+    """
     period_us = int(1e6 / rate_hz) if rate_hz > 0 else 0
     next_out = -1
     rows = 0
@@ -30,7 +39,12 @@ def run_replay(est: Estimator, samples: Iterable[ImuSample | GnssSample], writer
 
         bar = tqdm(total=progress_total, unit="samples", mininterval=0.5, file=sys.stderr)
     for s in samples:
-        advanced = est.push(s)
+        if aiding is not None and isinstance(s, GnssSample):
+            aiding.before(est, s)
+            advanced = est.push(s)
+            aiding.after(est, s, advanced)
+        else:
+            advanced = est.push(s)
         if bar is not None:
             bar.update(1)
         if not est.initialized or not advanced:
@@ -56,14 +70,34 @@ def _count_lines(path: Path) -> int:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="navd replay", description=__doc__)
     ap.add_argument("--config", help="TOML config (default: built-in defaults)")
-    ap.add_argument("--imu", required=True, help="IMU CSV (rates or increments)")
-    ap.add_argument("--gnss", required=True, help="GNSS CSV")
-    ap.add_argument("--out", required=True, help="solution CSV to write")
-    ap.add_argument("--rate", type=float, default=50.0, help="output rate between epochs, Hz")
+    ap.add_argument("--imu", help="IMU CSV (rates or increments)")
+    ap.add_argument("--gnss", help="GNSS CSV")
+    ap.add_argument("--recording", metavar="FILE",
+                    help="a `navd run --record` file instead of --imu/--gnss: replays the "
+                         "daemon's pushes with its config, output at its output instants")
+    ap.add_argument("--out", required=True,
+                    help="solution CSV to write (with --recording, *.jsonl writes every "
+                         "NavSolution field exactly)")
+    ap.add_argument("--rate", type=float, default=None,
+                    help="output rate between epochs, Hz (default 50; with --recording the "
+                         "daemon's)")
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override a config value (repeatable)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_log_arguments(ap)
     a = ap.parse_args(argv)
+    if a.log is not None:
+        if a.imu or a.gnss or a.recording:
+            ap.error("--log replaces --imu/--gnss/--recording")
+        return _replay_log(a)
+    if a.recording is not None:
+        if a.imu or a.gnss:
+            ap.error("--recording replaces --imu/--gnss")
+        return _replay_recording(a)
+    if not (a.imu and a.gnss):
+        ap.error("either --imu and --gnss, --recording, or --log is required")
+    if a.rate is None:
+        a.rate = 50.0
     try:
         cfg = EstimatorConfig.from_dict(load_config(a.config, a.set))
     except ConfigError as exc:
@@ -80,9 +114,10 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(a.out)
     tmp = out.with_suffix(out.suffix + ".part")
     try:
-        with open(tmp, "w") as fh:
+        with open(tmp, "w") as fh, _aiding(a.aiding_out) as aid:
             rows = run_replay(est, merge(read_imu(imu_path, rep), read_gnss(gnss_path, rep)),
-                              SolutionWriter(fh), a.rate, total, progress=not a.quiet)
+                              SolutionWriter(fh), a.rate, total, progress=not a.quiet,
+                              aiding=aid)
     except ReplayFormatError as exc:
         tmp.unlink(missing_ok=True)
         print(f"navd replay: {exc}", file=sys.stderr)
@@ -95,4 +130,142 @@ def main(argv: list[str] | None = None) -> int:
     counters = dict(est.counters)
     print(f"navd replay: {rows} solution rows -> {out}; skipped rows: {len(rep.issues)}; "
           f"estimator: {counters}", file=sys.stderr)
+    return 0
+
+
+def _replay_recording(a: argparse.Namespace) -> int:
+    """Replay a daemon recording: same config (unless --config/--set), same output rule."""
+    from navd.record import (
+        RecordingError,
+        RecordingReader,
+        SolutionJsonlWriter,
+        solutions,
+    )
+
+    try:
+        rec = RecordingReader(a.recording)
+    except (OSError, RecordingError) as exc:
+        print(f"navd replay: {exc}", file=sys.stderr)
+        return 2
+    try:
+        if a.config:
+            tables = load_config(a.config, a.set)
+        else:  # the daemon's own configuration, --set applied on top
+            tables = copy.deepcopy(rec.config)
+            for ov in a.set:
+                parts, value = parse_override(ov)
+                node = tables
+                for p in parts[:-1]:
+                    node = node.setdefault(p, {})
+                    if not isinstance(node, dict):
+                        raise ConfigError(f"override {ov!r}: {p} is not a table")
+                node[parts[-1]] = value
+        # the daemon's construction (DOV model, polarization aid), so the replay matches
+        from navd.daemon import make_estimator
+
+        est = make_estimator(tables)
+    except ConfigError as exc:
+        print(f"navd replay: config error: {exc}", file=sys.stderr)
+        return 2
+    rate = a.rate if a.rate is not None else rec.output_rate_hz
+    out = Path(a.out)
+    tmp = out.with_suffix(out.suffix + ".part")
+    rows = 0
+    with open(tmp, "w") as fh:
+        writer = SolutionJsonlWriter(fh) if out.suffix == ".jsonl" else SolutionWriter(fh)
+        for sol in solutions(est, rec.samples(), rate):
+            writer.write(sol)
+            rows += 1
+    tmp.replace(out)
+    if rec.truncated_bytes:
+        print(f"navd replay: recording ends in a partial record ({rec.truncated_bytes} bytes "
+              "ignored)", file=sys.stderr)
+    print(f"navd replay: {rows} solution rows at {rate:g} Hz -> {out}; "
+          f"estimator: {dict(est.counters)}", file=sys.stderr)
+    return 0
+
+
+# -- flight logs (navd.io.logs): --log FILE [--format ...] ------------------------------------
+
+
+def _add_log_arguments(ap: argparse.ArgumentParser) -> None:
+    from navd.io.logs import FORMATS, LogOptions
+
+    d = LogOptions()
+    g = ap.add_argument_group("flight logs (instead of --imu/--gnss)")
+    g.add_argument("--log", metavar="FILE",
+                   help="PX4 ULog, ArduPilot DataFlash .bin, MAVLink .tlog, X8 text log (dir "
+                        "or zip) or a replay-CSV folder")
+    g.add_argument("--format", choices=FORMATS, default=None,
+                   help="log format (default: detected from the content)")
+    g.add_argument("--reference-out", metavar="CSV",
+                   help="write the log's onboard attitude (t_us,roll_deg,pitch_deg,yaw_deg)")
+    g.add_argument("--aiding-out", metavar="CSV",
+                   help="write one row per GNSS epoch: course update used/rejected, "
+                        "innovations, bias estimates (for navd report; also with --imu/--gnss)")
+    g.add_argument("--gnss-h-acc-m", type=float, default=d.h_acc_m,
+                   help="horizontal 1-sigma where the log has none, m (default %(default)s)")
+    g.add_argument("--gnss-v-acc-m", type=float, default=d.v_acc_m,
+                   help="vertical 1-sigma where the log has none, m (default %(default)s)")
+    g.add_argument("--gnss-vel-acc-mps", type=float, default=d.vel_acc_mps,
+                   help="velocity 1-sigma where the log has none, m/s (default %(default)s)")
+    g.add_argument("--geoid-sep-m", type=float, default=d.geoid_sep_m,
+                   help="geoid undulation added to MSL-only altitudes, m (default %(default)s)")
+    g.add_argument("--gnss-delay-ms", type=float, default=d.gnss_delay_s * 1e3,
+                   help="receiver latency: fixes are taken as valid this long before their "
+                        "log time stamp, ms (default %(default)s)")
+
+
+def _aiding(path: str | None) -> contextlib.AbstractContextManager[AidingWriter | None]:
+    if path is None:
+        return contextlib.nullcontext()
+
+    @contextlib.contextmanager
+    def cm() -> Iterator[AidingWriter]:
+        from navd.io.logs import AidingWriter
+
+        with open(path, "w") as fh:
+            yield AidingWriter(fh)
+
+    return cm()
+
+
+def _replay_log(a: argparse.Namespace) -> int:
+    """Read a flight log into samples and replay them through :func:`run_replay`."""
+    from navd.io.logs import LogFormatError, LogOptions, read_log, write_reference
+
+    try:
+        cfg = EstimatorConfig.from_dict(load_config(a.config, a.set))
+    except ConfigError as exc:
+        print(f"navd replay: config error: {exc}", file=sys.stderr)
+        return 2
+    opts = LogOptions(h_acc_m=a.gnss_h_acc_m, v_acc_m=a.gnss_v_acc_m,
+                      vel_acc_mps=a.gnss_vel_acc_mps, geoid_sep_m=a.geoid_sep_m,
+                      gnss_delay_s=a.gnss_delay_ms * 1e-3)
+    try:
+        data = read_log(a.log, a.format, opts)
+    except (LogFormatError, ReplayFormatError) as exc:
+        print(f"navd replay: {exc}", file=sys.stderr)
+        return 2
+    print(f"navd replay: {data.summary()}", file=sys.stderr)
+    for note in data.notes:
+        print(f"navd replay: note: {note}", file=sys.stderr)
+    if data.damage is not None:
+        print(f"navd replay: WARNING: {data.damage}", file=sys.stderr)
+    if a.reference_out:
+        with open(a.reference_out, "w") as fh:
+            n = write_reference(data.reference, fh)
+        src = data.reference.source or "none in the log"
+        print(f"navd replay: {n} reference attitudes ({src}) -> {a.reference_out}",
+              file=sys.stderr)
+    est = Estimator(cfg)
+    out = Path(a.out)
+    tmp = out.with_suffix(out.suffix + ".part")
+    with open(tmp, "w") as fh, _aiding(a.aiding_out) as aid:
+        rows = run_replay(est, data.samples(), SolutionWriter(fh),
+                          50.0 if a.rate is None else a.rate, data.n_samples,
+                          progress=not a.quiet, aiding=aid)
+    tmp.replace(out)
+    print(f"navd replay: {rows} solution rows -> {out}; course update: {est.course_status}; "
+          f"estimator: {dict(est.counters)}", file=sys.stderr)
     return 0

@@ -117,6 +117,14 @@ class Sources:
 
                 self.mavlink = await MavlinkLink.open(m.listen, self.mavlink_decoder,
                                                       on_mavlink, clock_us=clock)
+                rx = self.cfg.daemon.rx_buffer_bytes
+                if rx:
+                    # The default (~200 kB, ~270 small datagrams) overflows during a short
+                    # stall of the loop at kHz input rates; the kernel counts, nobody else.
+                    got = self.mavlink.set_receive_buffer(rx)
+                    if got and got < rx:
+                        _log.info("UDP receive buffer %d bytes (asked %d; net.core.rmem_max "
+                                  "limits it)", got, rx)
                 opened.append(f"mavlink {m.listen}")
             d = self.cfg.dronecan
             if d.enabled:

@@ -312,7 +312,9 @@ class Estimator:
         self.pos[2] = fix.alt_m
         self.vel_n[0] = fix.vel_n
         self.vel_n[1] = fix.vel_e
-        self.vel_n[2] = fix.vel_d
+        self.vel_n[2] = fix.vel_d if math.isfinite(fix.vel_d) else 0.0
+        if self.dov_field is not None:
+            self.dov_on_grid = self.dov_field.eval_into(fix.lat_rad, fix.lon_rad, self.dov)
         self.bias_g[:] = 0.0
         self.bias_a[:] = 0.0
         P = self.P

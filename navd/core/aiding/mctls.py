@@ -22,13 +22,14 @@ matrix is a linear function of the small vector δθ_k (the "constrained" TLS of
 Mendel & Harada, IEEE TSP 1991), eliminating it to first order leaves a generalized LS
 whose weights depend on the unknowns::
 
-    J(a) = Σ_k w_k e_kᵀ S_k e_k,   e_k = ỹ_k - v_k(a),   v_k(a) = Σ_j a_j τ_k^j
+    Q(a) = Σ_k w_k e_kᵀ S_k e_k,   e_k = ỹ_k - v_k(a),   v_k(a) = Σ_j a_j τ_k^j
     Σ_k(a) = s² σ_k² I + [v_k×] Σθ_k [v_k×]ᵀ        (coefficient noise acts across v_k)
     S_k = B_k Σ_k⁻¹ B_k,   ỹ_k = B_k⁻¹ y_k,   B_k = E[Exp(-δθ_k)] = I + ½(Σθ_k - tr Σθ_k I)
 
 B_k removes the second-order shrink of a randomly rotated vector (LS is biased by
--½(tr Σθ - Σθ) v, which no first-order method sees).  J is minimized by re-evaluating
+-½(tr Σθ - Σθ) v, which no first-order method sees).  Q is minimized by re-evaluating
 Σ_k at the current fit (fixed point; Σ_k depends on a only weakly, 2-3 passes converge).
+w_k = 1 in modes "ls" (which also drops the Σθ and B terms) and "tls".
 
 Why not the unstructured or the mixed LS-TLS (Golub-Hoffman-Stewart / Van Huffel).  In the
 NED form (1) the only regressors are the exact time columns; mixed LS-TLS with no noisy
@@ -40,17 +41,36 @@ LS -0.066 m/s along track, unstructured TLS +0.060 m/s, same RMS.  The structure
 what carries the information; at realistic 1.6e-6 rad the TLS terms change the estimate by
 ~1e-5 m/s (|v| δθ) and LS and TLS coincide, which tests/test_mctls.py checks.
 
-Robust reweighting (mode "mctls").  Velocity jumps come in runs, so a start that survives up
-to ~40 % contamination is needed before any reweighting: least-quantile-of-squares over
-minimal subsets (p+1 epochs that span at least half the window, interpolated exactly, plus
-the plain LS fit as one candidate), scored by the h-th smallest Mahalanobis distance d_k²,
-h = ⌊n/2⌋ + ⌊(p+2)/2⌋.  Subsets come from a fixed-seed generator, so a replay is
-bit-exact.  The winner gives a variance scale s² = max(1, d²_(h) / χ²_3(h/(n+1))): it only
-inflates the receiver's σ when that is optimistic, never shrinks it.  Then bisquare IRLS
-against the receiver's σ: w_k = (1 - (d_k/c₃)²)² for d_k < c₃, else 0, with
-c₃ = κ c and κ = 1.172: the scalar c = 4.685 gives 95 % Gaussian efficiency; for the
-3-vector Mahalanobis distance the same efficiency needs c₃ = 5.49 (computed numerically
-from the M-estimator's asymptotic variance).  An epoch with w = 0 is an outlier.
+Robust reweighting (mode "mctls"), against the receiver's σ: bisquare weights
+w_k = (1 - (d_k/c₃)²)² for d_k < c₃, else 0, on the Mahalanobis distance d_k² = e_kᵀ S_k e_k;
+c₃ = κ c with κ = 1.172: the scalar c = 4.685 gives 95 % Gaussian efficiency, and for a
+3-vector residual the same efficiency needs c₃ = 5.49 (computed from the M-estimator's
+asymptotic variance).  An epoch with w = 0 is an outlier.  IRLS on a redescending ρ needs a
+start inside the right basin, and jumps come in runs:
+
+* Start: the plain LS fit and fits interpolating 100 minimal subsets (p+1 epochs spanning at
+  least half the window; fixed-seed generator, so a replay is bit-exact), scored by the
+  h-th smallest d_k², h = ⌊n/2⌋ + ⌊(p+2)/2⌋ (least-quantile, the least-median family;
+  ``start="lqs"``, default, scale-free) or by Σ_k ρ(d_k/c₃) at the current scale
+  (``start="rho"``).  Alone, the ρ score was slightly better (benchmark bursts: detection
+  0.889 vs 0.880); with the polished candidates below the two measure the same (0.988).
+* Polished candidates, compared on J = Σρ after IRLS: (1) the best start; (2) the previous
+  push's solution, re-expressed in this window's τ, kept unless (1) is better by 1 (one
+  outlier's worth; this hysteresis is what keeps a growing run of jumps rejected: detection
+  0.89 → 0.99); (3) the winner with a rejected newest epoch re-admitted, if that epoch lies
+  within twice the rejection radius, so that a clean epoch is not rejected only because a
+  noisy neighbour bent the cubic's end.
+* Scale: s² starts from the previous push's value (1 at first); a scale-free check (the
+  least h-th smallest d² over the candidates against its clean expectation χ²_3(h/(n+1)))
+  takes over if 5x larger; after IRLS, s² is refined on the inliers' Σd²/dof, leaving 1
+  only at 99 % significance and never going below 1.  So s inflates an optimistic receiver
+  σ (tests: 3x optimistic is recovered) and is 1 otherwise.
+
+Limits, measured (benchmarks/mctls.py): at order 3 the window's end is an extrapolation
+whenever the newest epochs are rejected, and its σ grows fast (0.1 → 0.9 m/s over 5
+epochs at σ = 0.1 m/s); runs longer than ~5 epochs then get partly accepted (the cubic bends
+onto them), and the first clean epochs after a run are often rejected (cheap: skipped).
+Order 2 extrapolates much better and, on the benchmark's car, is better everywhere.
 
 Output at the newest epoch: a_0 (NED, m/s) and its covariance from the sandwich
 (AᵀWA)⁻¹ (Σ w_k² φφᵀ ⊗ S_k) (AᵀWA)⁻¹ (exact for the final weights held fixed), the weight
@@ -62,9 +82,13 @@ accepted so far predicts the newest one (covariance P_pred + σ_n² I); it is re
 ``window // 2`` times in a row: then the gate restarts from the rejected run (as a filter
 resets after repeated rejections) so that it cannot lock out for good.
 
-Cost: with the default window 20 and order 3 a push takes a few tens of µs ("ls", "tls",
-"gate") to ~100 µs ("mctls", 100 subsets).  Every array is allocated in ``Mctls.__init__``;
-a steady-state push allocates nothing (tests check tracemalloc and numba's NRT counters).
+Cost (default window 20, order 3, this 2-core machine): ~12 µs a push ("ls"), ~14 µs
+("gate"), ~24 µs ("tls"), ~185 µs ("mctls": 100 subsets and up to three IRLS polishes).
+Every array is allocated when ``Mctls`` is built, inside a numba jitclass: a push passes
+only scalars into compiled code and allocates nothing, not even the NRT meminfo that an
+ndarray argument costs per call (tests check tracemalloc and numba's NRT counters).  The
+price is ~4 s of compilation at the first ``Mctls`` of a process (jitclasses are not
+cached on disk; the kernels they call are).
 """
 
 from __future__ import annotations
@@ -74,7 +98,7 @@ import math
 import numba as nb
 import numpy as np
 import numpy.typing as npt
-from numba.experimental.jitclass import jitclass
+from numba.experimental import jitclass  # type: ignore[attr-defined]
 
 from navd.core._jit import jit
 from navd.core.earth import mat_ne_into, radii
@@ -89,7 +113,8 @@ KAPPA_3D = 1.172
 GATE_CHI2_3 = 16.266  # χ²_3 quantile at 0.999
 _SEED = 0x2545F491
 _MAX_IRLS = 30
-_W_TOL = 1e-6
+_HYSTERESIS = 1.0  # J advantage the previous solution keeps over a fresh one
+_W_TOL = 1e-4
 
 # Status codes returned by the kernel.
 _ST_OK = 1
@@ -106,6 +131,20 @@ _I_ITERS = 3
 _I_HAS_PREV = 4  # the previous push left a robust fit in xprev
 _F_T_PREV = 2  # newest time of that fit, s
 _F_H_PREV = 3  # its window span, s
+_F_S2_PREV = 4  # its variance scale s²
+
+
+def chi2_3_quantile(q: float) -> float:
+    """Quantile of the χ² distribution with 3 degrees of freedom (bisection on the CDF)."""
+    lo, hi = 0.0, 100.0
+    for _ in range(200):
+        x = 0.5 * (lo + hi)
+        cdf = math.erf(math.sqrt(0.5 * x)) - math.sqrt(2.0 * x / math.pi) * math.exp(-0.5 * x)
+        if cdf < q:
+            lo = x
+        else:
+            hi = x
+    return 0.5 * (lo + hi)
 
 
 @jit
@@ -349,13 +388,14 @@ def _kth_smallest(vals: Arr, s0: int, nw: int, k: int, srt: Arr) -> float:
 
 
 @jit
-def _start_crit(s0: int, nw: int, d2: Arr, srt: Arr, h: int, c3: float, crit: int) -> float:
-    """Score of a candidate fit: h-th smallest d² (crit 0) or Σ bisquare ρ(d/c₃) (crit 1)."""
+def _start_crit(s0: int, nw: int, d2: Arr, srt: Arr, h: int, c3: float, crit: int,
+                scale2: float) -> float:
+    """Score of a fit: h-th smallest d² (crit 0) or Σ bisquare ρ(d/(s c₃)) (crit 1)."""
     if crit == 0:
         return _kth_smallest(d2, s0, nw, h, srt)
     tot = 0.0
     for i in range(s0, nw):
-        u2 = d2[i] / (c3 * c3)
+        u2 = d2[i] / (scale2 * c3 * c3)
         if u2 < 1.0:
             v = 1.0 - u2
             tot += 1.0 - v * v * v
@@ -366,24 +406,33 @@ def _start_crit(s0: int, nw: int, d2: Arr, srt: Arr, h: int, c3: float, crit: in
 
 @jit
 def _robust_start(s0: int, nw: int, np_: int, phi: Arr, yc: Arr, sinv: Arr, d2: Arr,
-                  srt: Arr, vaug: Arr, sub: IArr, x: Arr, xb: Arr, n_sub: int, h: int,
-                  c3: float, crit: int) -> float:
-    """Best of several candidate fits by ``_start_crit``; leaves its coefficients in ``xb``.
+                  srt: Arr, vaug: Arr, sub: IArr, x: Arr, xb: Arr, xc: Arr, d2c: Arr,
+                  n_sub: int, h: int, q_h: float, c3: float, crit: int,
+                  scale2_prev: float) -> float:
+    """Robust start: leaves the best candidate's coefficients in ``xb``; returns s².
 
-    Candidates: ``x`` (the plain GLS fit, on entry) and fits interpolating minimal subsets.
-    Returns the winner's score.
+    Candidates: ``x`` (the plain GLS fit, on entry) and fits interpolating minimal subsets,
+    kept in ``xc`` (rows) with their d² in ``d2c``.  s² starts from the previous push's
+    ``scale2_prev``; the least h-th smallest d² over all candidates, divided by its
+    expectation ``q_h`` for clean data, replaces it only when 5x larger: a scale-free
+    check that catches a receiver σ far too optimistic, but is not fooled by the 3-4x a
+    run of 5-8 jumps in 20 epochs can put on the h-th order statistic (a too-large s²
+    lets the cubic bend onto the newest jumps).  Moderate optimism is left to the
+    inlier-based refinement after IRLS.  The winner is then the
+    minimum of Σρ at that scale (crit 1) or the LQS fit (crit 0).
     """
     m = 3 * np_
     n = nw - s0
     _mahal(s0, nw, np_, phi, x, yc, sinv, d2)
-    best = _start_crit(s0, nw, d2, srt, h, c3, crit)
     for r in range(m):
-        xb[r] = x[r]
+        xc[0, r] = x[r]
+    for i in range(s0, nw):
+        d2c[0, i] = d2[i]
+    nc = 1
     state = _SEED
     min_span = (n - 1) // 2
-    tried = 0
     attempts = 0
-    while tried < n_sub and attempts < 4 * n_sub:
+    while nc < n_sub + 1 and attempts < 4 * n_sub:
         attempts += 1
         # Distinct sorted indices; LCG in int64 (state < 2^31 keeps the product exact).
         for q in range(np_):
@@ -404,7 +453,6 @@ def _robust_start(s0: int, nw: int, np_: int, phi: Arr, yc: Arr, sinv: Arr, d2: 
         # A subset bunched in time extrapolates wildly over the rest of the window.
         if sub[np_ - 1] - sub[0] < min_span:
             continue
-        tried += 1
         # Exact interpolation through the subset: Gaussian elimination with partial pivoting
         # on [V | Y] (np_ x (np_+3)), all three components at once.
         for q in range(np_):
@@ -437,15 +485,31 @@ def _robust_start(s0: int, nw: int, np_: int, phi: Arr, yc: Arr, sinv: Arr, d2: 
             for j in range(np_ - 1, -1, -1):
                 s = vaug[j, np_ + a]
                 for c in range(j + 1, np_):
-                    s -= vaug[j, c] * x[3 * c + a]
-                x[3 * j + a] = s / vaug[j, j]
-        _mahal(s0, nw, np_, phi, x, yc, sinv, d2)
-        sc = _start_crit(s0, nw, d2, srt, h, c3, crit)
-        if sc < best:
-            best = sc
-            for r in range(m):
-                xb[r] = x[r]
-    return best
+                    s -= vaug[j, c] * xc[nc, 3 * c + a]
+                xc[nc, 3 * j + a] = s / vaug[j, j]
+        _mahal(s0, nw, np_, phi, xc[nc], yc, sinv, d2c[nc])
+        nc += 1
+    lq_best = math.inf
+    c_lq = 0
+    for c in range(nc):
+        lq = _kth_smallest(d2c[c], s0, nw, h, srt)
+        if lq < lq_best:
+            lq_best = lq
+            c_lq = c
+    scale2 = scale2_prev
+    if lq_best / q_h > 5.0 * scale2_prev:
+        scale2 = lq_best / q_h
+    c_best = c_lq
+    if crit == 1:
+        best = math.inf
+        for c in range(nc):
+            sc = _start_crit(s0, nw, d2c[c], srt, h, c3, 1, scale2)
+            if sc < best:
+                best = sc
+                c_best = c
+    for r in range(m):
+        xb[r] = xc[c_best, r]
+    return scale2
 
 
 @jit
@@ -508,9 +572,9 @@ def _raw_output(k: int, obs: Arr, sig: Arr, sth: Arr, bk: Arr, sinv: Arr, m3: Ar
 def _solve(t: Arr, y: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, acc: Arr, tau: Arr, phi: Arr,
            sinv: Arr, d2: Arr, srt: Arr, nrm: Arr, meat: Arr, rhs: Arr, x: Arr, xb: Arr,
            xs: Arr, e: Arr, col: Arr, vaug: Arr, sub: IArr, m3: Arr, tmp: Arr, xp: Arr,
-           xprev: Arr, xbest: Arr, wb: Arr, vel: Arr, cov: Arr, fout: Arr, iout: IArr,
-           obs: Arr, use_coef: bool, mode: int, np_: int, c3: float, n_sub: int,
-           start_crit: int, s0: int, k: int, count: int) -> int:
+           xprev: Arr, xbest: Arr, wb: Arr, xc: Arr, d2c: Arr, qh: Arr, vel: Arr, cov: Arr,
+           fout: Arr, iout: IArr, obs: Arr, use_coef: bool, mode: int, np_: int, c3: float,
+           n_sub: int, start_crit: int, s0: int, k: int, count: int) -> int:
     """Fit the full window (count >= min_epochs) per ``mode``; status code."""
     nw = t.shape[0]
     span = t[k] - t[s0]
@@ -593,14 +657,19 @@ def _solve(t: Arr, y: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, acc: Arr, tau: A
         if has_prev:
             hp = fout[_F_H_PREV]
             _reexpress(xp, xprev, np_, span / hp, (t[k] - fout[_F_T_PREV]) / hp)
-        _robust_start(s0, nw, np_, phi, obs, sinv, d2, srt, vaug, sub, x, xb, n_sub, h, c3,
-                      start_crit)
-        # Polished starts compared on the M-objective Σρ (what IRLS descends; its minima are
-        # nearly flat between "this epoch is the outlier" and "that one is"): (1) the best
-        # of LS and the subsets; (2) the previous solution, which keeps a long run of jumps
-        # rejected as it grows; (3) the winner with the newest epoch re-admitted, so that a
-        # clean epoch is not rejected merely because a noisy neighbour bent the cubic's end.
+        scale2 = _robust_start(s0, nw, np_, phi, obs, sinv, d2, srt, vaug, sub, x, xb, xc,
+                               d2c, n_sub, h, qh[n], c3, start_crit,
+                               fout[_F_S2_PREV] if has_prev else 1.0)
+        # Polished starts compared on the M-objective J = Σρ (what IRLS descends; its minima
+        # are nearly flat between "this epoch is the outlier" and "that one is", the cubic's
+        # end being flexible): (1) the best of LS and the subsets; (2) the previous
+        # solution, kept unless (1) explains at least one more epoch (J lower by 1, one
+        # outlier's worth): this hysteresis keeps a growing run of jumps rejected; (3) the
+        # winner with a rejected newest epoch re-admitted, tried only when that epoch is
+        # within twice the rejection radius: a clean epoch must not stay rejected because a
+        # noisy neighbour bent the cubic's end, while a jump of many σ is never re-admitted.
         jbest = math.inf
+        d2k_best = 0.0
         for cand in range(3):
             if cand == 0:
                 for r in range(m):
@@ -611,22 +680,24 @@ def _solve(t: Arr, y: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, acc: Arr, tau: A
                 for r in range(m):
                     x[r] = xp[r]
             else:
-                if jbest == math.inf or wb[k] > 0.0:
+                if jbest == math.inf or wb[k] > 0.0 or d2k_best > 4.0 * c3 * c3:
                     continue
                 for i in range(s0, nw):
                     w[i] = wb[i]
                 w[k] = 1.0
                 if not (_fill_sinv(s0, nw, np_, phi, xbest, True, obs, sig, sth, bk, sinv, m3,
-                                   tmp, 1.0, use_coef)
+                                   tmp, scale2, use_coef)
                         and _gls(s0, nw, np_, phi, obs, w, sinv, nrm, rhs, x)):
                     continue
             its = _irls(s0, nw, np_, phi, obs, sig, sth, bk, w, sinv, d2, nrm, rhs, x, m3,
-                        tmp, 1.0, use_coef, c3)
+                        tmp, scale2, use_coef, c3)
             if its < 0:
                 continue
-            j = _start_crit(s0, nw, d2, srt, h, c3, 1)
-            if j < jbest:
-                jbest = j
+            # d² already carries s², hence scale 1 here.
+            jc = _start_crit(s0, nw, d2, srt, h, c3, 1, 1.0)
+            if jc < jbest + (_HYSTERESIS if cand == 1 else 0.0):
+                jbest = jc
+                d2k_best = d2[k]
                 for r in range(m):
                     xbest[r] = x[r]
                 for i in range(s0, nw):
@@ -637,21 +708,31 @@ def _solve(t: Arr, y: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, acc: Arr, tau: A
         for r in range(m):
             x[r] = xbest[r]
         its = _irls(s0, nw, np_, phi, obs, sig, sth, bk, w, sinv, d2, nrm, rhs, x, m3, tmp,
-                    1.0, use_coef, c3)
+                    scale2, use_coef, c3)
         if its < 0:
             return _ST_SINGULAR
-        # An optimistic receiver σ shows as inlier residuals too large for their degrees of
-        # freedom: then (and only then, at 99 %) rescale σ and reweight.
-        ssum = 0.0
-        n_in = 0
-        for i in range(s0, nw):
-            if w[i] > 0.0:
-                ssum += d2[i]
-                n_in += 1
-        dof = 3 * (n_in - np_)
-        scale2 = 1.0
-        if dof > 0 and ssum / dof > 1.0 + 2.33 * math.sqrt(2.0 / dof):
-            scale2 = ssum / dof
+        # Refine s² on the inliers' residuals against their degrees of freedom: the start's
+        # value is coarse (and inflated by contamination).  s² stays 1 unless the receiver's
+        # σ is optimistic at 99 %; it never goes below 1.
+        for _ in range(4):
+            ssum = 0.0
+            n_in = 0
+            for i in range(s0, nw):
+                if w[i] > 0.0:
+                    ssum += d2[i]
+                    n_in += 1
+            dof = 3 * (n_in - np_)
+            if dof <= 0:
+                break
+            ratio = ssum / dof
+            if scale2 == 1.0 and ratio <= 1.0 + 2.33 * math.sqrt(2.0 / dof):
+                break
+            if abs(ratio - 1.0) <= 0.05:
+                break
+            new = max(1.0, scale2 * ratio)
+            if new == scale2:
+                break
+            scale2 = new
             its2 = _irls(s0, nw, np_, phi, obs, sig, sth, bk, w, sinv, d2, nrm, rhs, x, m3,
                          tmp, scale2, use_coef, c3)
             if its2 < 0:
@@ -665,6 +746,7 @@ def _solve(t: Arr, y: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, acc: Arr, tau: A
             xprev[r] = x[r]
         fout[_F_T_PREV] = t[k]
         fout[_F_H_PREV] = span
+        fout[_F_S2_PREV] = scale2
         iout[_I_HAS_PREV] = 1
     _sandwich_cov(s0, nw, np_, phi, w, sinv, nrm, meat, xs, e, col, cov)
     for a in range(3):
@@ -676,12 +758,11 @@ def _solve(t: Arr, y: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, acc: Arr, tau: A
 def _push_kernel(t: Arr, y: Arr, yc: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, acc: Arr,
                  tau: Arr, phi: Arr, sinv: Arr, d2: Arr, srt: Arr, nrm: Arr, meat: Arr,
                  rhs: Arr, x: Arr, xb: Arr, xs: Arr, e: Arr, col: Arr, vaug: Arr, sub: IArr,
-                 m3: Arr, tmp: Arr, xp: Arr, xprev: Arr, xbest: Arr, wb: Arr, vel: Arr,
-                 cov: Arr, fout: Arr, iout: IArr, t_s: float, vx: float, vy: float, vz: float,
-                 sigma_mps: float,
-                 lat_rad: float, lon_rad: float, pos_sigma_m: float, mode: int, np_: int,
-                 min_epochs: int, c3: float, n_sub: int, start_crit: int,
-                 max_gap_s: float) -> int:
+                 m3: Arr, tmp: Arr, xp: Arr, xprev: Arr, xbest: Arr, wb: Arr, xc: Arr,
+                 d2c: Arr, qh: Arr, vel: Arr, cov: Arr, fout: Arr, iout: IArr, t_s: float,
+                 vx: float, vy: float, vz: float, sigma_mps: float, lat_rad: float,
+                 lon_rad: float, pos_sigma_m: float, mode: int, np_: int, min_epochs: int,
+                 c3: float, n_sub: int, start_crit: int, max_gap_s: float) -> int:
     """Insert one epoch and solve; see :class:`Mctls` for the arrays' shapes and units."""
     nw = t.shape[0]
     count = iout[_I_COUNT]
@@ -739,13 +820,15 @@ def _push_kernel(t: Arr, y: Arr, yc: Arr, sig: Arr, sth: Arr, bk: Arr, w: Arr, a
         return _ST_FILLING
 
     st = _solve(t, y, sig, sth, bk, w, acc, tau, phi, sinv, d2, srt, nrm, meat, rhs, x, xb,
-                xs, e, col, vaug, sub, m3, tmp, xp, xprev, xbest, wb, vel, cov, fout, iout, obs,
-                use_coef, mode, np_, c3, n_sub, start_crit, s0, k, count)
+                xs, e, col, vaug, sub, m3, tmp, xp, xprev, xbest, wb, xc, d2c, qh, vel, cov, fout,
+                iout, obs, use_coef, mode, np_, c3, n_sub, start_crit, s0, k, count)
     if st != _ST_OK:
         _raw_output(k, obs, sig, sth, bk, sinv, m3, tmp, vel, cov, use_coef)
         for i in range(s0, nw):
             w[i] = 1.0
         iout[_I_OUTLIER] = 0
+        # A stale solution would enjoy the hysteresis at the next push.
+        iout[_I_HAS_PREV] = 0
     return st
 
 
@@ -781,10 +864,13 @@ _STATE_SPEC = [
     ("xprev", nb.float64[::1]),  # (M,) previous fit in its own τ
     ("xbest", nb.float64[::1]),  # (M,) best polished start
     ("wb", nb.float64[::1]),  # (W,) its weights
+    ("xc", nb.float64[:, ::1]),  # (n_subsets+1, M) robust-start candidates
+    ("d2c", nb.float64[:, ::1]),  # (n_subsets+1, W) their d²
+    ("qh", nb.float64[::1]),  # (W+1,) χ²_3 quantile at h/(n+1) for n valid epochs
     # Outputs.
     ("vel", nb.float64[::1]),  # (3,) NED m/s
     ("cov", nb.float64[:, ::1]),  # (3, 3) m²/s²
-    ("fout", nb.float64[::1]),  # (4,) see _F_*
+    ("fout", nb.float64[::1]),  # (5,) see _F_*
     ("iout", nb.int64[::1]),  # (5,) see _I_*
 ]
 
@@ -798,7 +884,7 @@ class _State:
     unboxed by reference, so a push passes scalars only and allocates nothing.
     """
 
-    def __init__(self, window: int, np_: int) -> None:
+    def __init__(self, window: int, np_: int, n_sub: int, qh: Arr) -> None:
         nw = window
         m = 3 * np_
         self.t = np.zeros(nw)
@@ -830,9 +916,12 @@ class _State:
         self.xprev = np.zeros(m)
         self.xbest = np.zeros(m)
         self.wb = np.zeros(nw)
+        self.xc = np.zeros((n_sub + 1, m))
+        self.d2c = np.zeros((n_sub + 1, nw))
+        self.qh = qh.copy()
         self.vel = np.zeros(3)
         self.cov = np.zeros((3, 3))
-        self.fout = np.zeros(4)
+        self.fout = np.zeros(5)
         self.iout = np.zeros(5, dtype=np.int64)
 
 
@@ -846,9 +935,9 @@ def _push_state(st: _State, t_s: float, vx: float, vy: float, vz: float, sigma_m
     return _push_kernel(st.t, st.y, st.yc, st.sig, st.sth, st.bk, st.w, st.acc, st.tau,
                         st.phi, st.sinv, st.d2, st.srt, st.nrm, st.meat, st.rhs, st.x,
                         st.xb, st.xs, st.e, st.col, st.vaug, st.sub, st.m3, st.tmp, st.xp,
-                        st.xprev, st.xbest, st.wb, st.vel, st.cov, st.fout, st.iout, t_s, vx,
-                        vy, vz, sigma_mps, lat_rad, lon_rad, pos_sigma_m, mode, np_,
-                        min_epochs, c3, n_sub, start_crit, max_gap_s)
+                        st.xprev, st.xbest, st.wb, st.xc, st.d2c, st.qh, st.vel, st.cov,
+                        st.fout, st.iout, t_s, vx, vy, vz, sigma_mps, lat_rad, lon_rad,
+                        pos_sigma_m, mode, np_, min_epochs, c3, n_sub, start_crit, max_gap_s)
 
 
 class Mctls:
@@ -866,8 +955,8 @@ class Mctls:
     pos_sigma_m : default 1-σ horizontal position error of a fix (m): the coefficient noise
         of the ECEF→NED rotation.  ``push`` may override it per epoch (receiver h_acc).
     n_subsets : minimal subsets tried by the robust start.
-    start : robust-start criterion, "rho" (Σ bisquare ρ with the receiver's σ) or "lqs"
-        (h-th smallest d², least-median style); see the module docstring.
+    start : robust-start criterion, "lqs" (h-th smallest d², least-median style) or "rho"
+        (Σ bisquare ρ at the current σ scale); see the module docstring.
     max_gap_s : a larger gap between epochs (s) restarts the window.
 
     Attributes (views of internal arrays, updated in place by ``push``)
@@ -880,7 +969,7 @@ class Mctls:
 
     def __init__(self, window: int = 20, order: int = 3, mode: str = "mctls",
                  bisquare_c: float = 4.685, min_epochs: int = 8, *,
-                 pos_sigma_m: float = 10.0, n_subsets: int = 100, start: str = "rho",
+                 pos_sigma_m: float = 10.0, n_subsets: int = 100, start: str = "lqs",
                  max_gap_s: float = 1.0) -> None:
         if mode not in MODES:
             raise ValueError(f"mode must be one of {sorted(MODES)}, got {mode!r}")
@@ -909,7 +998,11 @@ class Mctls:
         self._c3 = KAPPA_3D * bisquare_c
         self._start_crit = 1 if start == "rho" else 0
         self._np = order + 1
-        self._st = _State(window, self._np)
+        qh = np.ones(window + 1)
+        for n in range(1, window + 1):
+            h = min(n, n // 2 + (self._np + 1) // 2)
+            qh[n] = chi2_3_quantile(h / (n + 1.0))
+        self._st = _State(window, self._np, n_subsets, qh)
         # Boxed once: these ndarrays share memory with the jitclass' arrays.
         self.vel_n: Arr = self._st.vel
         self.cov_n: Arr = self._st.cov

@@ -1,0 +1,263 @@
+"""Seed-000 Tables S1/S2: INS/POL attitude errors per nominal tilt, polarization on and off.
+
+Cases (20N 120E, 2020-06-01 18:12-18:53 UTC+8, through sunset; MEMS IMU of seed 001):
+
+* ``static``: the vehicle stands still, tilted by the nominal angle about body y (Table S1,
+  "pitch", gamma_x in the seed's right-forward-up body) or body x (Table S2, "roll"), with
+  the table's initial yaw; GNSS reports zero velocity (a zero-velocity update), so the
+  heading is otherwise unobservable (12 deg/h gyro bias: no gyrocompassing).
+* ``moving``: a car (scenario pol_moving, 5-12 m/s, gentle turns) with the polarization
+  sensor *mounted* at the nominal tilt (a vehicle cannot drive at 90 deg pitch), filter in
+  ``traditional`` mode (GNSS position + velocity, no course-as-heading update), so heading is
+  observable from the INS only through accelerations.
+
+Every run starts with the heading 5 deg off (init.heading_source = config, 1-sigma 10 deg).
+Polarization readings go through the MAVLink wire format (encode -> decode) unless
+``--no-wire``.  Errors are computed - true; "heading" is the ZYX yaw error, and ``phiD`` the
+rotation error about the local vertical (meaningful even at 90 deg pitch, where ZYX yaw and
+roll are undefined).  RMS over the second half of the run.
+
+    python benchmarks/polarization.py [--duration-s 2460] [--jobs 2] [--json PATH] [--png PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any
+
+import numpy as np
+
+from firmware_sim.polarization import PolMavlinkEncoder
+from firmware_sim.run import SimRun, generate
+from firmware_sim.scenario import load_scenario
+from navd.config import EstimatorConfig, load_config
+from navd.core.aiding.polarization import PolarizationAiding
+from navd.core.estimator import Estimator
+from navd.core.rotation import log_so3, mat_to_euler
+from navd.io.polarization import decode
+from navd.types import ImuSample, PolSample
+
+R2D = 180.0 / math.pi
+TILTS = (0, 15, 30, 45, 60, 75, 90)
+# initial yaw per nominal tilt, deg (seed 000, Tables S1 and S2)
+YAW_S1 = {g: 203.87 + g for g in TILTS}
+YAW_S2 = {g: 293.87 - g for g in TILTS}
+YAW_ERROR_DEG = 5.0
+HEADING_SD_DEG = 10.0
+
+
+def _case_overrides(table: str, tilt: float, variant: str) -> dict[str, Any]:
+    yaw = YAW_S1[int(tilt)] if table == "S1" else YAW_S2[int(tilt)]
+    axis = "pitch" if table == "S1" else "roll"
+    if variant == "static":
+        return {"trajectory.yaw_deg": yaw, f"trajectory.{axis}_deg": float(tilt)}
+    return {"trajectory.yaw0_deg": yaw, f"polarization.mount_{axis}_deg": float(tilt)}
+
+
+def run_case(case: dict[str, Any]) -> dict[str, Any]:
+    """One run; returns the metrics and a 1 Hz error history for the plots."""
+    table, tilt, variant, pol_on = case["table"], case["tilt"], case["variant"], case["pol"]
+    ov = _case_overrides(table, tilt, variant)
+    ov["duration_s"] = case["duration_s"]
+    sc = load_scenario(f"pol_{variant}", ov)
+    run = generate(sc, seed=case["seed"])
+    yaw0 = float(run.truth_euler[0, 2]) * R2D + YAW_ERROR_DEG
+    overrides = ["init.heading_source=config", f"init.heading_deg={yaw0}",
+                 f"init.heading_sd_deg={HEADING_SD_DEG}"]
+    if variant == "moving":
+        overrides.append("filter.mode=traditional")
+    cfg = EstimatorConfig.from_dict(load_config(None, overrides))
+    ps = sc.polarization
+    aid = PolarizationAiding.from_config({
+        "mount_roll_deg": ps.mount_roll_deg, "mount_pitch_deg": ps.mount_pitch_deg,
+        "mount_yaw_deg": ps.mount_yaw_deg}) if pol_on else None
+    est = Estimator(cfg, pol=aid)
+    out = _score(run, est, case["wire"])
+    geo = run.pol
+    assert geo is not None
+    out.update({
+        "table": table, "tilt_deg": tilt, "variant": variant, "pol": pol_on,
+        "initial_yaw_deg": YAW_S1[tilt] if table == "S1" else YAW_S2[tilt],
+        "duration_s": case["duration_s"], "seed": case["seed"],
+        "scatter_deg_min": float(geo["scatter_deg"].min()),
+        "scatter_deg_max": float(geo["scatter_deg"].max()),
+        "dop_true_min": float(geo["dop_true"].min()), "dop_true_max": float(geo["dop_true"].max()),
+        "counters": {k: v for k, v in est.counters.items() if k.startswith("pol")},
+    })
+    return out
+
+
+def _score(run: SimRun, est: Estimator, wire: bool) -> dict[str, Any]:
+    enc = PolMavlinkEncoder()
+    t0 = int(run.truth_t_us[0])
+    dt_truth = int(run.truth_t_us[1] - run.truth_t_us[0])
+    period = 100_000  # 10 Hz scoring
+    rows: list[tuple[float, ...]] = []
+    wire_fail = 0
+    for s in run.samples():
+        if isinstance(s, PolSample) and wire:
+            d = decode(enc.encode(s))
+            if d is None:
+                wire_fail += 1
+                continue
+            s = d
+        est.push(s)
+        if not (isinstance(s, ImuSample) and est.initialized) or (s.t_us - t0) % period:
+            continue
+        k = (s.t_us - t0) // dt_truth
+        c_true = run.truth_mat_nb[k]
+        de = np.array(mat_to_euler(est.mat_nb)) - run.truth_euler[k]
+        de = (de + math.pi) % (2 * math.pi) - math.pi
+        phi = -np.array(log_so3(est.mat_nb @ c_true.T))
+        sd = est.solution().att_sd_rad
+        rows.append((s.t_us * 1e-6, *(de * R2D), *(phi * R2D), *(np.array(sd) * R2D),
+                     math.sqrt(max(float(est.P[2, 2]), 0.0)) * R2D))
+    a = np.array(rows)
+    t = a[:, 0]
+    half = t >= 0.5 * t[-1]
+    e = a[:, 1:4]
+    phi = a[:, 4:7]
+
+    def rms(x: Any) -> float:
+        return float(np.sqrt(np.mean(np.square(x))))
+
+    # time until the heading error stays below 0.5 deg
+    bad = np.nonzero(np.abs(e[:, 2]) >= 0.5)[0]
+    conv = float(t[bad[-1] + 1] - t[0]) if bad.size and bad[-1] + 1 < t.size else (
+        0.0 if not bad.size else math.inf)
+    hist_idx = np.arange(0, t.size, 10)
+    return {
+        "roll_rms_deg": rms(e[half, 0]), "pitch_rms_deg": rms(e[half, 1]),
+        "heading_rms_deg": rms(e[half, 2]), "heading_std_deg": float(np.std(e[half, 2])),
+        "phiD_rms_deg": rms(phi[half, 2]),
+        "tilt_rms_deg": rms(np.hypot(phi[half, 0], phi[half, 1])),
+        "final_heading_err_deg": float(e[-1, 2]), "final_heading_sd_deg": float(a[-1, 9]),
+        "final_phiD_sd_deg": float(a[-1, 10]),
+        "heading_conv_s": conv, "wire_fail": wire_fail,
+        "hist": {"t_s": t[hist_idx].tolist(), "err_deg": e[hist_idx].round(5).tolist(),
+                 "sd_deg": a[hist_idx, 7:10].round(5).tolist()},
+    }
+
+
+def _fmt(x: float, nd: int = 3) -> str:
+    if not math.isfinite(x):
+        return "inf"
+    return f"{x:.{nd}f}" if abs(x) < 1000 else f"{x:.0f}"
+
+
+def print_table(records: list[dict[str, Any]]) -> None:
+    for variant in ("static", "moving"):
+        recs = [r for r in records if r["variant"] == variant]
+        if not recs:
+            continue
+        print(f"\n== {variant}: RMS over the second half of the run, deg "
+              f"(initial heading error {YAW_ERROR_DEG} deg) ==")
+        print("table tilt  yaw0    scatter(deg)  DoP        | POL off: head  phiD   pitch  roll  "
+              "| POL on: head  phiD_sd phiD   pitch  roll   conv_s  accepted/low_dop/near_bore/"
+              "rejected")
+        for table in ("S1", "S2"):
+            for tilt in TILTS:
+                off = next((r for r in recs if r["table"] == table and r["tilt_deg"] == tilt
+                            and not r["pol"]), None)
+                on = next((r for r in recs if r["table"] == table and r["tilt_deg"] == tilt
+                           and r["pol"]), None)
+                ref = on or off
+                if ref is None:
+                    continue
+                line = (f"{table:5s} {tilt:4d}  {ref['initial_yaw_deg']:6.2f}  "
+                        f"{ref['scatter_deg_min']:5.1f}-{ref['scatter_deg_max']:5.1f}  "
+                        f"{ref['dop_true_min']:.2f}-{ref['dop_true_max']:.2f} |")
+                if off:
+                    line += (f"        {_fmt(off['heading_rms_deg'], 2):>6s} "
+                             f"{_fmt(off['phiD_rms_deg'], 2):>6s} "
+                             f"{_fmt(off['pitch_rms_deg'], 2):>6s} "
+                             f"{_fmt(off['roll_rms_deg'], 2):>6s}")
+                line += " |"
+                if on:
+                    c = on["counters"]
+                    line += (f"       {_fmt(on['heading_rms_deg']):>6s} "
+                             f"{_fmt(on['final_phiD_sd_deg']):>7s} "
+                             f"{_fmt(on['phiD_rms_deg']):>6s} {_fmt(on['pitch_rms_deg']):>6s} "
+                             f"{_fmt(on['roll_rms_deg']):>6s} {_fmt(on['heading_conv_s'], 0):>7s}"
+                             f"  {c.get('pol_accepted', 0)}/{c.get('pol_low_dop', 0)}/"
+                             f"{c.get('pol_sun_near_boresight', 0)}/{c.get('pol_rejected', 0)}")
+                print(line)
+
+
+def plot(records: list[dict[str, Any]], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    recs = [r for r in records if r["variant"] == "static"]
+    fig, axes = plt.subplots(4, 3, figsize=(15, 13), sharex=True)
+    names = ("roll error", "pitch error", "heading error")
+    for row, (table, pol_on) in enumerate((("S1", True), ("S2", True), ("S1", False),
+                                           ("S2", False))):
+        for r in sorted((r for r in recs if r["table"] == table and r["pol"] == pol_on),
+                        key=lambda r: r["tilt_deg"]):
+            t = np.array(r["hist"]["t_s"]) / 60.0
+            e = np.array(r["hist"]["err_deg"])
+            for col in range(3):
+                axes[row, col].plot(t, e[:, col], lw=0.8, label=f"{r['tilt_deg']} deg")
+        for col in range(3):
+            ax = axes[row, col]
+            ax.set_title(f"Table {table} ({'pitch' if table == 'S1' else 'roll'} tilt), "
+                         f"POL {'on' if pol_on else 'off'}: {names[col]}", fontsize=9)
+            ax.set_ylabel("deg")
+            ax.grid(alpha=0.3)
+            if col == 2 and pol_on:
+                ax.set_ylim(-1.0, 1.0)
+            elif col == 2:
+                ax.set_ylim(-15.0, 15.0)
+            else:
+                ax.set_ylim(-2.0, 2.0)
+        axes[row, 0].legend(fontsize=7, ncol=2)
+    for col in range(3):
+        axes[-1, col].set_xlabel("minutes after 18:12 local time")
+    fig.suptitle("INS/POL, static tilted vehicle (seed 000 Figs. S3/S5 analogue; errors "
+                 "computed - true; ZYX Euler undefined at 90 deg pitch)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--duration-s", type=float, default=2460.0,
+                    help="run length (the seed's window 18:12-18:53 is 2460 s)")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--variants", default="static,moving")
+    ap.add_argument("--no-wire", action="store_true",
+                    help="push PolSamples directly instead of through MAVLink bytes")
+    ap.add_argument("--json", help="write all records (with 1 Hz error histories) here")
+    ap.add_argument("--png", help="write the error-curve figure here")
+    a = ap.parse_args(argv)
+    cases = [{"table": tb, "tilt": g, "variant": v, "pol": p, "duration_s": a.duration_s,
+              "seed": a.seed, "wire": not a.no_wire}
+             for v in a.variants.split(",") for tb in ("S1", "S2") for g in TILTS
+             for p in (False, True)]
+    t0 = time.perf_counter()
+    if a.jobs > 1:
+        with ProcessPoolExecutor(a.jobs) as ex:
+            records = list(ex.map(run_case, cases))
+    else:
+        records = [run_case(c) for c in cases]
+    print_table(records)
+    print(f"\n{len(cases)} runs of {a.duration_s:.0f} s in {time.perf_counter() - t0:.0f} s")
+    if a.json:
+        with open(a.json, "w") as fh:
+            json.dump(records, fh, indent=1)
+    if a.png:
+        plot(records, a.png)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

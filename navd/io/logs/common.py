@@ -1,0 +1,416 @@
+"""What every flight-log reader shares: the result type, damage reports, options, and the
+side files ``navd replay`` writes for ``navd report`` (reference attitude, aiding).
+
+A reader turns one log into the samples the daemon would push (``navd.types``, SI, NED/FRD,
+integer microseconds, time-ordered) plus the log's own attitude estimate as a reference.
+Rate-type IMU records become increments in :class:`navd.io.common.RateIntegrator`, the same
+zero-order hold the live adapters use, so a log and the equivalent rate CSV give the same
+increments bit for bit.
+
+Damage: a reader never raises on bad bytes after a valid start.  It stops at the first
+damaged record and says where (byte offset for binary logs, file and line for text), and
+everything before that point is returned and replays normally.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, TextIO
+
+import numpy as np
+import numpy.typing as npt
+
+from navd.core.earth import radii
+from navd.core.rotation import mat_to_euler
+from navd.diag import Counters, RateLimitedLog
+from navd.io.common import RateIntegrator, Rejector
+from navd.io.replay import ReadReport, merge, read_gnss, read_imu
+from navd.types import FixType, GnssSample, ImuSample
+
+if TYPE_CHECKING:
+    from navd.core.estimator import Estimator
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+DEG = math.pi / 180.0
+R2D = 180.0 / math.pi
+
+FORMATS = ("csv", "ulog", "dataflash", "tlog", "x8")
+
+
+class LogFormatError(ValueError):
+    """The file is not a readable log of the given format at all (nothing could be read)."""
+
+
+@dataclass(frozen=True)
+class LogOptions:
+    """Reader settings (SI units).
+
+    h_acc_m, v_acc_m, vel_acc_mps: 1-sigma accuracies assumed where the log carries none
+        (the X8 text log never does; PX4/ArduPilot logs do when the receiver reports them).
+    geoid_sep_m: geoid undulation N = h_ellipsoid - H_msl, added where a log gives only MSL
+        altitude (X8, ArduPilot GPS.Alt without GPA.Und, MAVLink alt).
+    max_imu_gap_s: a longer interval between rate samples is a gap, not one long hold.
+    gnss_delay_s: receiver latency to remove: a fix stamped t (arrival) is valid at t - delay.
+    imu_instance, gnss_instance: which sensor instance to read where a log has several.
+    """
+
+    h_acc_m: float = 2.5
+    v_acc_m: float = 5.0
+    vel_acc_mps: float = 0.3
+    geoid_sep_m: float = 0.0
+    max_imu_gap_s: float = 0.1
+    gnss_delay_s: float = 0.0
+    imu_instance: int = 0
+    gnss_instance: int = 0
+
+
+@dataclass(frozen=True)
+class LogDamage:
+    """Where a log stops being readable.  ``unit`` is "byte" (offset) or "line"."""
+
+    path: str
+    unit: str
+    position: int
+    reason: str
+
+    def __str__(self) -> str:
+        return (f"{self.path}: damaged at {self.unit} {self.position}: {self.reason}; "
+                f"read up to there")
+
+
+@dataclass
+class Reference:
+    """An attitude series from the log's own estimator (not truth): ZYX Euler angles, rad."""
+
+    t_us: I64
+    roll_rad: F64
+    pitch_rad: F64
+    yaw_rad: F64
+    source: str = ""
+
+    @classmethod
+    def empty(cls, source: str = "") -> Reference:
+        z = np.zeros(0)
+        return cls(np.zeros(0, dtype=np.int64), z, z.copy(), z.copy(), source)
+
+    def __len__(self) -> int:
+        return len(self.t_us)
+
+    def sorted_unique(self) -> Reference:
+        """Time-ordered, one row per time stamp (the first), non-finite rows removed."""
+        ok = (np.isfinite(self.roll_rad) & np.isfinite(self.pitch_rad)
+              & np.isfinite(self.yaw_rad))
+        t = self.t_us[ok]
+        order = np.argsort(t, kind="stable")
+        t = t[order]
+        keep = np.ones(len(t), dtype=bool)
+        keep[1:] = np.diff(t) > 0
+        idx = np.flatnonzero(ok)[order][keep]
+        return Reference(self.t_us[idx], self.roll_rad[idx], self.pitch_rad[idx],
+                         self.yaw_rad[idx], self.source)
+
+    def cut(self, t_end_us: int) -> Reference:
+        m = self.t_us <= t_end_us
+        return Reference(self.t_us[m], self.roll_rad[m], self.pitch_rad[m], self.yaw_rad[m],
+                         self.source)
+
+
+def quat_to_euler(w: F64, x: F64, y: F64, z: F64) -> tuple[F64, F64, F64]:
+    """ZYX Euler angles (rad) of C_b^n from scalar-first quaternions (vectorised)."""
+    n = np.sqrt(w * w + x * x + y * y + z * z)
+    n = np.where(n > 0.0, n, 1.0)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    roll = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
+    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+class SampleBuilder:
+    """Collects IMU and GNSS samples as rows; keeps each stream strictly time-ordered.
+
+    A sample whose time is not after the previous one of its stream is dropped and counted
+    (``imu_not_increasing`` / ``gnss_not_increasing``), as the CSV reader does.
+    """
+
+    def __init__(self, options: LogOptions, counters: Counters | None = None) -> None:
+        self.options = options
+        self.counters = counters if counters is not None else Counters()
+        self._reject = Rejector(self.counters, RateLimitedLog(_quiet_logger(), 1e9), "log")
+        self._rates = RateIntegrator(self._reject, None, round(options.max_imu_gap_s * 1e6))
+        self._imu_t: list[int] = []
+        self._imu_dt: list[int] = []
+        self._imu_v: list[tuple[float, float, float, float, float, float]] = []
+        self._gnss_delay_us = round(options.gnss_delay_s * 1e6)
+        self._gnss_t: list[int] = []
+        self._gnss_v: list[tuple[float, ...]] = []
+        self._gnss_fix: list[int] = []
+
+    @property
+    def last_imu_t_us(self) -> int:
+        return self._imu_t[-1] if self._imu_t else -1
+
+    def add_imu(self, s: ImuSample) -> None:
+        if self._imu_t and s.t_us <= self._imu_t[-1]:
+            self.counters.inc("imu_not_increasing")
+            return
+        self._imu_t.append(s.t_us)
+        self._imu_dt.append(s.dt_us)
+        self._imu_v.append((s.dtheta_x, s.dtheta_y, s.dtheta_z, s.dvel_x, s.dvel_y, s.dvel_z))
+
+    def add_rates(self, t_us: int, gyro_rps: tuple[float, float, float],
+                  accel_mps2: tuple[float, float, float], key: object = 0) -> None:
+        """A point sample of rate and specific force; held back to the previous sample."""
+        s = self._rates.push(key, t_us, gyro_rps, accel_mps2)
+        if s is not None:
+            self.add_imu(s)
+
+    def add_gnss(self, g: GnssSample) -> None:
+        if self._gnss_delay_us:
+            g = dataclasses.replace(g, t_us=g.t_us - self._gnss_delay_us)
+        if self._gnss_t and g.t_us <= self._gnss_t[-1]:
+            self.counters.inc("gnss_not_increasing")
+            return
+        if g.fix_type < FixType.FIX_3D:
+            self.counters.inc("gnss_no_3d_fix")
+            return
+        self._gnss_t.append(g.t_us)
+        self._gnss_v.append((g.lat_rad, g.lon_rad, g.alt_m, g.vel_n, g.vel_e, g.vel_d,
+                             g.h_acc_m, g.v_acc_m, g.vel_acc_mps))
+        self._gnss_fix.append(int(g.fix_type))
+
+    def accuracy(self, h: float | None, v: float | None, s: float | None
+                 ) -> tuple[float, float, float]:
+        """Receiver accuracies where given (finite, > 0), else the configured ones."""
+        o = self.options
+
+        def pick(x: float | None, default: float) -> float:
+            return float(x) if x is not None and math.isfinite(x) and x > 0.0 else default
+
+        return pick(h, o.h_acc_m), pick(v, o.v_acc_m), pick(s, o.vel_acc_mps)
+
+    def build(self, fmt: str, path: str, reference: Reference,
+              damage: LogDamage | None = None, notes: list[str] | None = None,
+              t_end_us: int | None = None) -> LogData:
+        imu_t = np.asarray(self._imu_t, dtype=np.int64)
+        imu_dt = np.asarray(self._imu_dt, dtype=np.int64)
+        imu_v = np.asarray(self._imu_v, dtype=np.float64).reshape(-1, 6)
+        gnss_t = np.asarray(self._gnss_t, dtype=np.int64)
+        gnss_v = np.asarray(self._gnss_v, dtype=np.float64).reshape(-1, 9)
+        gnss_fix = np.asarray(self._gnss_fix, dtype=np.int64)
+        ref = reference.sorted_unique()
+        if t_end_us is not None:
+            m = imu_t <= t_end_us
+            imu_t, imu_dt, imu_v = imu_t[m], imu_dt[m], imu_v[m]
+            g = gnss_t <= t_end_us
+            gnss_t, gnss_v, gnss_fix = gnss_t[g], gnss_v[g], gnss_fix[g]
+            ref = ref.cut(t_end_us)
+        all_notes = list(notes or [])
+        snap = self.counters.snapshot()
+        skipped = {k: v for k, v in snap.items() if v and k != "imu_first_sample"}
+        if skipped:
+            all_notes.append("records dropped while reading: " + ", ".join(
+                f"{k}={v}" for k, v in sorted(skipped.items())))
+        return LogData(fmt, path, imu_t, imu_dt, imu_v, gnss_t, gnss_v, gnss_fix, ref, damage,
+                       all_notes)
+
+
+def _quiet_logger() -> logging.Logger:
+    # records dropped while reading a log are summarised in LogData.notes instead
+    lg = logging.getLogger("navd.io.logs.read")
+    if not lg.handlers:
+        lg.propagate = False
+        lg.addHandler(logging.NullHandler())
+    return lg
+
+
+@dataclass
+class LogData:
+    """Everything read from one log.
+
+    imu_t_us, imu_dt_us: (N,) int64; imu_inc: (N, 6) dtheta xyz (rad), dvel xyz (m/s), FRD.
+    gnss_t_us: (M,) int64; gnss: (M, 9) lat_rad, lon_rad, alt_m (ellipsoid), vel N/E/D (m/s),
+        h_acc_m, v_acc_m, vel_acc_mps; gnss_fix: (M,) FixType values.
+    reference: the log's own attitude estimate; damage: where reading stopped, if it did.
+    """
+
+    fmt: str
+    path: str
+    imu_t_us: I64
+    imu_dt_us: I64
+    imu_inc: F64
+    gnss_t_us: I64
+    gnss: F64
+    gnss_fix: I64
+    reference: Reference
+    damage: LogDamage | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.imu_t_us) + len(self.gnss_t_us)
+
+    def imu_samples(self) -> Iterator[ImuSample]:
+        t, dt, v = self.imu_t_us.tolist(), self.imu_dt_us.tolist(), self.imu_inc.tolist()
+        for k in range(len(t)):
+            r = v[k]
+            yield ImuSample(t[k], dt[k], r[0], r[1], r[2], r[3], r[4], r[5])
+
+    def gnss_samples(self) -> Iterator[GnssSample]:
+        t, v, fx = self.gnss_t_us.tolist(), self.gnss.tolist(), self.gnss_fix.tolist()
+        for k in range(len(t)):
+            r = v[k]
+            yield GnssSample(t[k], r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8],
+                             FixType(fx[k]))
+
+    def samples(self) -> Iterator[ImuSample | GnssSample]:
+        """The merged, time-ordered stream (a fix follows the IMU sample of the same time)."""
+        return merge(self.imu_samples(), self.gnss_samples())
+
+    def summary(self) -> str:
+        span = ((self.imu_t_us[-1] - self.imu_t_us[0]) * 1e-6) if len(self.imu_t_us) else 0.0
+        return (f"{self.fmt} log {self.path}: {len(self.imu_t_us)} IMU samples over "
+                f"{span:.1f} s, {len(self.gnss_t_us)} GNSS fixes, {len(self.reference)} "
+                f"reference attitudes ({self.reference.source or 'none'})")
+
+    def write_replay_csv(self, directory: str | Path) -> tuple[Path, Path]:
+        """Write the samples as replay CSV (increment form, %.17g: reads back bit for bit)."""
+        d = Path(directory)
+        d.mkdir(parents=True, exist_ok=True)
+        imu_p, gnss_p = d / "imu.csv", d / "gnss.csv"
+        with open(imu_p, "w") as fh:
+            fh.write("t_us,dt_us,dtheta_x,dtheta_y,dtheta_z,dvel_x,dvel_y,dvel_z\n")
+            for s in self.imu_samples():
+                fh.write(f"{s.t_us},{s.dt_us},{s.dtheta_x:.17g},{s.dtheta_y:.17g},"
+                         f"{s.dtheta_z:.17g},{s.dvel_x:.17g},{s.dvel_y:.17g},{s.dvel_z:.17g}\n")
+        with open(gnss_p, "w") as fh:
+            fh.write("t_us,lat_deg,lon_deg,alt_m,vel_n,vel_e,vel_d,h_acc_m,v_acc_m,"
+                     "vel_acc_mps\n")
+            for g in self.gnss_samples():
+                fh.write(f"{g.t_us},{math.degrees(g.lat_rad):.17g},"
+                         f"{math.degrees(g.lon_rad):.17g},{g.alt_m:.17g},{g.vel_n:.17g},"
+                         f"{g.vel_e:.17g},{g.vel_d:.17g},{g.h_acc_m:.17g},{g.v_acc_m:.17g},"
+                         f"{g.vel_acc_mps:.17g}\n")
+        return imu_p, gnss_p
+
+
+def read_csv_dir(path: str | Path, options: LogOptions | None = None) -> LogData:
+    """A replay-CSV folder (``imu.csv`` + ``gnss.csv``) as LogData; bad rows are noted."""
+    d = Path(path)
+    rep = ReadReport()
+    b = SampleBuilder(options if options is not None else LogOptions())
+    for s in read_imu(d / "imu.csv", rep):
+        b.add_imu(s)
+    for g in read_gnss(d / "gnss.csv", rep):
+        b.add_gnss(g)
+    notes = [f"skipped {i}" for i in rep.issues[:20]]
+    if len(rep.issues) > 20:
+        notes.append(f"... {len(rep.issues) - 20} more skipped rows")
+    return b.build("csv", str(d), Reference.empty(), None, notes)
+
+
+# ---------------------------------------------------------------------------------------------
+# side files written by ``navd replay`` and read by ``navd report``
+
+REFERENCE_COLS = ("t_us", "roll_deg", "pitch_deg", "yaw_deg")
+
+
+def write_reference(ref: Reference, fh: TextIO) -> int:
+    """Write ``t_us,roll_deg,pitch_deg,yaw_deg`` rows; return the number of rows."""
+    fh.write(",".join(REFERENCE_COLS) + "\n")
+    t = ref.t_us.tolist()
+    r = (ref.roll_rad * R2D).tolist()
+    p = (ref.pitch_rad * R2D).tolist()
+    y = (ref.yaw_rad * R2D).tolist()
+    for k in range(len(t)):
+        fh.write(f"{t[k]},{r[k]:.6f},{p[k]:.6f},{y[k]:.6f}\n")
+    return len(t)
+
+
+AIDING_COLS = (
+    "t_us", "course_status", "course", "pos_accepted", "pos_rejected", "vel_accepted",
+    "vel_rejected", "course_accepted", "course_rejected", "speed_mps", "course_deg",
+    "innov_pos_n_m", "innov_pos_e_m", "innov_pos_d_m", "innov_vel_n_mps", "innov_vel_e_mps",
+    "innov_vel_d_mps", "innov_course_deg", "gnss_lat_deg", "gnss_lon_deg",
+    "gyro_bias_x_dph", "gyro_bias_y_dph", "gyro_bias_z_dph", "accel_bias_x_mg",
+    "accel_bias_y_mg", "accel_bias_z_mg", "yaw_sd_deg",
+)
+
+
+class AidingWriter:
+    """One row per GNSS epoch pushed after navigation started: what the filter did with it.
+
+    ``course`` is ``used`` (the course update was applied at this epoch), ``rejected``
+    (tried and refused: by its own gate, or the joint velocity + course block failed and
+    velocity went alone), or ``off`` (not tried: disabled, waiting for speed, yaw
+    rate, ...; ``course_status`` says why).  Counters are cumulative.  Innovations are GNSS
+    minus the filter's prediction just before the update (NED metres and m/s; lever arm and
+    latency not removed), and ``innov_course_deg`` is wrap(yaw - course), the quantity the
+    completed heading update uses; biases are the estimates after the update.
+    """
+
+    def __init__(self, fh: TextIO) -> None:
+        self._fh = fh
+        fh.write(",".join(AIDING_COLS) + "\n")
+        self._pre: tuple[float, ...] | None = None
+        self._pre_counts = (0, 0)
+
+    def before(self, est: Estimator, g: GnssSample) -> None:
+        """Call just before ``est.push(g)``."""
+        if not est.initialized:
+            self._pre = None
+            return
+        lat, lon, alt = float(est.pos[0]), float(est.pos[1]), float(est.pos[2])
+        r_m, r_n = radii(lat)
+        dn = (g.lat_rad - lat) * (r_m + alt)
+        de = (g.lon_rad - lon) * (r_n + alt) * math.cos(lat)
+        dd = -(g.alt_m - alt)
+        v = est.vel_n
+        _, _, yaw = mat_to_euler(est.mat_nb)
+        speed = math.hypot(g.vel_n, g.vel_e)
+        course = math.atan2(g.vel_e, g.vel_n) if speed > 0.0 else math.nan
+        dc = ((yaw - course + math.pi) % (2.0 * math.pi) - math.pi) if speed >= 1.0 \
+            else math.nan
+        self._pre = (speed, course * R2D, dn, de, dd, g.vel_n - float(v[0]),
+                     g.vel_e - float(v[1]), g.vel_d - float(v[2]), dc * R2D)
+        c = est.counters
+        self._pre_counts = (c.get("course_accepted", 0),
+                            c.get("course_rejected", 0) + c.get("vel_course_rejected", 0))
+
+    def after(self, est: Estimator, g: GnssSample, advanced: bool) -> None:
+        """Call just after ``est.push(g)``."""
+        if self._pre is None or not est.initialized:
+            return
+        c = est.counters
+
+        def n(name: str) -> int:
+            return int(c.get(name, 0))  # .get: never add keys to the estimator's counters
+
+        if n("course_accepted") > self._pre_counts[0]:
+            course = "used"
+        elif n("course_rejected") + n("vel_course_rejected") > self._pre_counts[1]:
+            course = "rejected"
+        else:
+            course = "off"
+        pre = self._pre
+        sol = est.solution()
+        bg = [b * R2D * 3600.0 for b in sol.gyro_bias_rps]
+        ba = [b / 9.80665e-3 for b in sol.accel_bias_mps2]
+        status = est.course_status.replace(",", ";")
+        f = ",".join(f"{x:.6g}" for x in pre)
+        self._fh.write(
+            f"{g.t_us},{status},{course},{n('pos_accepted')},{n('pos_rejected')},"
+            f"{n('vel_accepted') + n('vel_course_accepted')},"
+            f"{n('vel_rejected') + n('vel_course_rejected')},"
+            f"{n('course_accepted')},{n('course_rejected')},{f},"
+            f"{math.degrees(g.lat_rad):.9f},{math.degrees(g.lon_rad):.9f},"
+            f"{bg[0]:.4f},{bg[1]:.4f},{bg[2]:.4f},{ba[0]:.4f},{ba[1]:.4f},{ba[2]:.4f},"
+            f"{sol.att_sd_rad[2] * R2D:.5f}\n")
+        self._pre = None
+

@@ -1,0 +1,171 @@
+"""ArduPilot DataFlash (``.bin``) reader, decoding with pymavlink's ``DFReader_binary`` (the
+reader ``mavutil.mavlink_connection`` returns for ``.bin`` files; built directly here so the
+file name does not matter).
+
+Messages (pymavlink applies the format multipliers, so values are in the units below):
+    IMU   TimeUS (us since boot; TimeMS x 1000 in old logs), I (instance; older logs name the
+          second IMU ``IMU2``), GyrX/Y/Z (rad/s, FRD), AccX/Y/Z (m/s^2, FRD).  Point samples:
+          held over the interval to the previous one (RateIntegrator), as the MAVLink adapter
+          does with HIGHRES_IMU.
+    GPS   TimeUS (logging time, not time of validity), I, Status (>= 3: 3D fix), Lat/Lng (deg),
+          Alt (m, **MSL**), Spd (m/s), GCrs (deg), VZ (m/s, down positive: AP_GPS velocity is
+          NED).  vN = Spd cos GCrs, vE = Spd sin GCrs, vD = VZ.
+    GPA   HAcc, VAcc (m), SAcc (m/s) and, where logged, Und (geoid undulation, m) and VV
+          (have vertical velocity); matched to GPS by TimeUS and instance.  Height above the
+          ellipsoid = Alt + Und if Und is logged, else Alt + geoid_sep.
+    ATT   Roll, Pitch, Yaw (deg; yaw 0..360) of the onboard AHRS/EKF as the reference
+          (AHRS2 if there is no ATT).
+
+Damage: messages are read in sequence and the offset of each is checked; the first skipped
+bytes (no 0xA3 0x95 header where a message should start, or an unknown type) or a message cut
+short by the end of the file stops the read there, with its byte offset.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from navd.io.logs.common import (
+    DEG,
+    LogDamage,
+    LogData,
+    LogFormatError,
+    LogOptions,
+    Reference,
+    SampleBuilder,
+)
+from navd.types import FixType, GnssSample
+
+_FIX = {3: FixType.FIX_3D, 4: FixType.DGPS, 5: FixType.RTK_FLOAT, 6: FixType.RTK_FIXED}
+
+
+def _time_us(m: Any) -> int | None:
+    t = getattr(m, "TimeUS", None)
+    if t is not None:
+        return int(t)
+    t = getattr(m, "TimeMS", None)
+    return int(t) * 1000 if t is not None else None
+
+
+def _instance(m: Any, name: str, base: str) -> int:
+    """Instance from the ``I`` field, or from the name suffix (IMU2 -> 1) in old logs."""
+    i = getattr(m, "I", None)
+    if i is not None and "I" in m.get_fieldnames():
+        return int(i)
+    suffix = name[len(base):]
+    return int(suffix) - 1 if suffix.isdigit() else 0
+
+
+def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogData:
+    from pymavlink import DFReader
+
+    opts = options if options is not None else LogOptions()
+    p = str(path)
+    if not Path(path).is_file():
+        raise LogFormatError(f"no such file: {p}")
+    sink = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+            r = DFReader.DFReader_binary(p, zero_time_base=False)
+    except Exception as exc:  # pymavlink raises assorted types on garbage
+        raise LogFormatError(f"{p}: pymavlink cannot open it as DataFlash: {exc}") from exc
+    b = SampleBuilder(opts)
+    gps_rows: list[tuple[int, int, Any]] = []
+    gpa: dict[tuple[int, int], Any] = {}
+    att: list[tuple[int, float, float, float]] = []
+    ahrs2: list[tuple[int, float, float, float]] = []
+    damage: LogDamage | None = None
+    data_len = int(r.data_len)
+    try:
+        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+            while True:
+                off0 = int(r.offset)
+                m = r.recv_msg()
+                if m is None:
+                    if data_len - off0 > 0:
+                        damage = LogDamage(p, "byte", off0, (
+                            f"message cut short by the end of the file "
+                            f"({data_len - off0} bytes left)"))
+                    break
+                start = int(r.offset) - int(m.fmt.len)
+                if start != off0:
+                    damage = LogDamage(p, "byte", off0, (
+                        f"{start - off0} unreadable bytes (no valid message header) before "
+                        f"the next {m.get_type()} message"))
+                    break
+                name = m.get_type()
+                if name.startswith("IMU") and name[3:] in ("", "2", "3"):
+                    if _instance(m, name, "IMU") != opts.imu_instance:
+                        continue
+                    t = _time_us(m)
+                    if t is None:
+                        continue
+                    b.add_rates(t, (float(m.GyrX), float(m.GyrY), float(m.GyrZ)),
+                                (float(m.AccX), float(m.AccY), float(m.AccZ)))
+                elif name.startswith("GPS") and name[3:] in ("", "2"):
+                    if _instance(m, name, "GPS") != opts.gnss_instance:
+                        continue
+                    t = _time_us(m)
+                    if t is not None:
+                        gps_rows.append((t, int(m.Status), m))
+                elif name.startswith("GPA") and name[3:] in ("", "2"):
+                    t = _time_us(m)
+                    if t is not None:
+                        gpa[(t, _instance(m, name, "GPA"))] = m
+                elif name == "ATT":
+                    t = _time_us(m)
+                    if t is not None:
+                        att.append((t, float(m.Roll), float(m.Pitch), float(m.Yaw)))
+                elif name == "AHRS2":
+                    t = _time_us(m)
+                    if t is not None:
+                        ahrs2.append((t, float(m.Roll), float(m.Pitch), float(m.Yaw)))
+    except Exception as exc:  # a decoder exception mid-file is damage, not a crash
+        damage = LogDamage(p, "byte", int(r.offset), f"pymavlink failed: {exc}")
+    for t, status, m in gps_rows:
+        if status < 3:
+            b.counters.inc("gnss_no_3d_fix")
+            continue
+        a = gpa.get((t, opts.gnss_instance))
+        h = v = s = None
+        und = None
+        vv = 1
+        if a is not None:
+            h, v, s = float(a.HAcc), float(a.VAcc), float(a.SAcc)
+            fields = a.get_fieldnames()
+            if "Und" in fields:
+                und = float(a.Und)
+            if "VV" in fields:
+                vv = int(a.VV)
+        h_acc, v_acc, vel_acc = b.accuracy(h, v, s)
+        spd, crs = float(m.Spd), float(m.GCrs) * DEG
+        vd = float(m.VZ) if vv else math.nan
+        alt = float(m.Alt) + (und if und is not None and und != 0.0 else opts.geoid_sep_m)
+        b.add_gnss(GnssSample(t, float(m.Lat) * DEG, float(m.Lng) * DEG, alt,
+                              spd * math.cos(crs), spd * math.sin(crs), vd, h_acc, v_acc,
+                              vel_acc, _FIX.get(status, FixType.FIX_3D)))
+    rows, src = (att, "ATT") if att else (ahrs2, "AHRS2")
+    if rows:
+        a_arr = np.asarray(rows, dtype=np.float64)
+        ref = Reference(np.asarray([x[0] for x in rows], dtype=np.int64), a_arr[:, 1] * DEG,
+                        a_arr[:, 2] * DEG, a_arr[:, 3] * DEG, src)
+        # yaw 0..360 -> (-180, 180]
+        ref.yaw_rad = (ref.yaw_rad + math.pi) % (2.0 * math.pi) - math.pi
+    else:
+        ref = Reference.empty()
+    notes = []
+    if not gpa:
+        notes.append("no GPA messages: assumed GNSS accuracies from options")
+    out = sink.getvalue().strip()
+    if out:
+        notes.append("pymavlink: " + out.replace("\n", "; ")[:500])
+    with contextlib.suppress(Exception):
+        r.data_map.close()
+        r.filehandle.close()
+    return b.build("dataflash", p, ref, damage, notes)

@@ -1,0 +1,234 @@
+"""The daemon's parts on their own: config sections, sd_notify, the queue, recordings, the
+output schedule, latency statistics, the stream's timing."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import os
+import socket
+import tomllib
+from pathlib import Path
+
+import pytest
+from daemon_util import ROOT, car_run
+
+from firmware_sim.stream import mavlink_events, parse_udp_target, timed_samples
+from navd.config import ConfigError, load_config
+from navd.daemon_config import DaemonConfig, DaemonSection, MavlinkSection, ZenohSection
+from navd.diag import RateLimitedLog
+from navd.io.mavlink import MavlinkDecoder
+from navd.record import OutputSchedule, RecordingReader, RecordingWriter
+from navd.service import SdNotifier, watchdog_interval_s
+from navd.sinks import LatencyStats
+from navd.sources import SampleQueue
+from navd.types import FixType, GnssSample, ImuSample, PolSample
+
+# -- config -----------------------------------------------------------------------------------
+
+
+def test_defaults_are_the_documented_ones() -> None:
+    c = DaemonConfig.from_dict({})
+    assert c.mavlink.listen == "udpin:127.0.0.1:14560"
+    assert c.mavlink.send == "udpout:127.0.0.1:14550"
+    assert c.mavlink.attitude_rate_hz == 50.0 and c.mavlink.heartbeat_period_s == 1.0
+    assert c.zenoh.listen == ("tcp/127.0.0.1:7447",) and c.zenoh.multicast_scouting is False
+    assert c.dronecan.enabled is False
+
+
+def test_shipped_config_documents_every_daemon_key_with_the_defaults() -> None:
+    doc = tomllib.loads((ROOT / "config" / "navd.toml").read_text())
+    c = DaemonConfig.from_dict(doc)
+    d = DaemonConfig.from_dict({})
+    for name in ("daemon", "mavlink", "dronecan", "zenoh"):
+        assert getattr(c, name) == getattr(d, name), name
+        fields = set(type(getattr(d, name)).__dataclass_fields__)
+        assert set(doc[name]) == fields, name
+
+
+@pytest.mark.parametrize(("override", "message"), [
+    ("mavlink.attitude_rate_hz=0", "[mavlink] attitude_rate_hz must be a rate in Hz"),
+    ('mavlink.attitude_rate_hz="fast"', "[mavlink] attitude_rate_hz must be a number"),
+    ("daemon.status_period_s=-1", "[daemon] status_period_s must be a number of seconds"),
+    ("daemon.queue_size=1.5", "[daemon] queue_size must be an integer"),
+    ("daemon.queue_sz=10", "[daemon] unknown key 'queue_sz'"),
+    ("mavlnk.sysid=2", "unknown config section(s) ['mavlnk']"),
+    ('mavlink.listen="udpin:localhost"', "[mavlink] listen: bad MAVLink address"),
+    ("mavlink.allow=[[1]]", "[mavlink] allow must be a list of [int, int] pairs"),
+    ('mavlink.imu_messages=["ATTITUDE"]', "unsupported: ['ATTITUDE']"),
+    ("dronecan.node_id=0", "[dronecan] node_id must be an integer 1..127"),
+    ('zenoh.vehicle="a/b"', "[zenoh] vehicle"),
+    ("mavlink.enabled=false", "no input"),
+    ("filter.mode=sideways", "[filter] mode"),  # the estimator's sections are checked too
+])
+def test_errors_name_section_key_and_unit(override: str, message: str) -> None:
+    with pytest.raises(ConfigError) as e:
+        DaemonConfig.from_dict(load_config(None, [override]))
+    assert message in str(e.value)
+
+
+def test_sections_build_adapter_configs() -> None:
+    m = MavlinkSection(allow=((1, 1),), imu_id=-1, nominal_imu_rate_hz=0.0,
+                       max_imu_gap_ms=50.0).input_config()
+    assert m.allow == frozenset({(1, 1)}) and m.imu_id is None
+    assert m.nominal_imu_rate_hz is None and m.max_imu_gap_s == pytest.approx(0.05)
+    z = ZenohSection(vehicle="car7", listen=("tcp/127.0.0.1:9",)).session_config()
+    assert z.vehicle == "car7" and not z.multicast_scouting
+    assert DaemonSection().queue_size >= 16
+
+
+# -- sd_notify --------------------------------------------------------------------------------
+
+
+def _recv(sock: socket.socket) -> str:
+    sock.settimeout(2.0)
+    return sock.recv(4096).decode()
+
+
+@pytest.mark.parametrize("abstract", [False, True])
+def test_sd_notify_path_and_abstract_sockets(tmp_path: Path, abstract: bool) -> None:
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    if abstract:
+        name = f"navd-test-{os.getpid()}"
+        server.bind("\0" + name)
+        env = {"NOTIFY_SOCKET": "@" + name}
+    else:
+        path = str(tmp_path / "n")
+        server.bind(path)
+        env = {"NOTIFY_SOCKET": path}
+    n = SdNotifier(env)
+    try:
+        assert n.enabled
+        assert n.ready("up") and _recv(server) == "READY=1\nSTATUS=up"
+        assert n.watchdog() and _recv(server) == "WATCHDOG=1"
+        assert n.status("two\nlines") and _recv(server) == "STATUS=two lines"
+        assert n.stopping() and _recv(server) == "STOPPING=1"
+    finally:
+        n.close()
+        server.close()
+
+
+def test_sd_notify_without_socket_is_a_no_op_and_never_raises(tmp_path: Path) -> None:
+    assert not SdNotifier({}).notify("READY=1")
+    gone = SdNotifier({"NOTIFY_SOCKET": str(tmp_path / "missing")})
+    assert gone.enabled and not gone.watchdog() and gone.errors == 1
+
+
+def test_watchdog_interval_respects_watchdog_pid() -> None:
+    assert watchdog_interval_s({}) is None
+    assert watchdog_interval_s({"WATCHDOG_USEC": "0"}) is None
+    assert watchdog_interval_s({"WATCHDOG_USEC": "4000000"}) == 4.0
+    me = str(os.getpid())
+    assert watchdog_interval_s({"WATCHDOG_USEC": "2000000", "WATCHDOG_PID": me}) == 2.0
+    assert watchdog_interval_s({"WATCHDOG_USEC": "2000000", "WATCHDOG_PID": "1"}) is None
+
+
+# -- queue, schedule, latency -----------------------------------------------------------------
+
+
+def _imu(t_us: int) -> ImuSample:
+    return ImuSample(t_us, 1000, 0.0, 0.0, 0.0, 0.0, 0.0, -0.0098)
+
+
+def test_queue_drops_the_oldest_and_counts(caplog: pytest.LogCaptureFixture) -> None:
+    async def go() -> list[int]:
+        q = SampleQueue(16, RateLimitedLog(logging.getLogger("t"), 60.0))
+        for k in range(40):
+            q.put(k, _imu(k + 1))
+        assert q.drops == 24 and q.high_water == 16
+        q.close()
+        q.put(99, _imu(1000))  # after close: ignored
+        got = []
+        while (item := await q.get()) is not None:
+            got.append(item[1].t_us)
+        return got
+
+    with caplog.at_level(logging.WARNING):
+        got = asyncio.run(go())
+    # the newest 15 survive (the closing marker took one slot), in order
+    assert got == list(range(26, 41))
+    assert len([r for r in caplog.records if "queue full" in r.message]) == 1
+
+
+def test_output_schedule_on_sensor_time() -> None:
+    s = OutputSchedule(50.0)
+    due = [t for t in range(0, 100_001, 10_000) if s.due(t)]
+    assert due == [0, 20_000, 40_000, 60_000, 80_000, 100_000]
+    s = OutputSchedule(50.0)
+    # irregular samples: the first one at or past each 20 ms boundary
+    assert [t for t in (5_000, 19_999, 20_001, 39_000, 41_000, 95_000) if s.due(t)] == [
+        5_000, 20_001, 41_000, 95_000]
+    with pytest.raises(ValueError):
+        OutputSchedule(0.0)
+
+
+def test_latency_stats_window_and_percentiles() -> None:
+    st = LatencyStats(window=100)
+    assert st.summary() == {"n": 0}
+    for k in range(1, 251):
+        st.add(k * 1000)  # 1..250 us
+    s = st.summary()
+    assert s["n"] == 250 and s["window"] == 100
+    assert s["p50_us"] == 201.0 and s["p99_us"] == 250.0 and s["max_us"] == 250.0
+
+
+# -- recordings -------------------------------------------------------------------------------
+
+
+def test_recording_round_trip_is_exact(tmp_path: Path) -> None:
+    samples = [
+        _imu(1000),
+        ImuSample(2000, 1000, 1e-300, -0.0, math.nan, math.inf, 0.1 + 0.2, -1.5e-7),
+        GnssSample(1500, 0.6, 1.9, 400.123456789, 1.0, 2.0, math.nan, 1.5, 2.5, 0.1,
+                   FixType.RTK_FIXED, (1.0, 2.0, 3.0), (0.1, 0.2, 0.3)),
+        GnssSample(2500, -0.6, -1.9, -10.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        GnssSample(3500, 0.1, 0.2, 3.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, FixType.FIX_3D, None,
+                   (4.0, 5.0, 6.0)),
+        PolSample(4000, 1.25, 0.6, 1.7e9),
+    ]
+    path = tmp_path / "r.navdrec"
+    w = RecordingWriter(path, {"filter": {"mode": "completed"}}, 25.0)
+    for s in samples:
+        w.write(s)
+    w.close()
+    r = RecordingReader(path)
+    assert r.config == {"filter": {"mode": "completed"}} and r.output_rate_hz == 25.0
+    got = list(r.samples())
+    assert len(got) == len(samples) and r.truncated_bytes == 0
+    for a, b in zip(got, samples, strict=True):
+        assert type(a) is type(b)
+        assert repr(a) == repr(b)  # repr: NaN == NaN, -0.0 != 0.0
+    # a record cut short (daemon killed mid-write) ends the stream without raising
+    path.write_bytes(path.read_bytes()[:-5])
+    r = RecordingReader(path)
+    assert len(list(r.samples())) == len(samples) - 1 and r.truncated_bytes > 0
+
+
+def test_not_a_recording(tmp_path: Path) -> None:
+    from navd.record import RecordingError
+
+    p = tmp_path / "x"
+    p.write_bytes(b"t_us,dt_us\n")
+    with pytest.raises(RecordingError):
+        RecordingReader(p)
+
+
+# -- the stream's timing ----------------------------------------------------------------------
+
+
+def test_stream_sends_gnss_at_arrival_with_time_of_validity() -> None:
+    run = car_run(3.0, **{"gnss.latency_s": 0.05})
+    events = list(timed_samples(run))
+    times = [t for t, _ in events]
+    assert times == sorted(times)
+    gnss = [(t, s) for t, s in events if isinstance(s, GnssSample)]
+    assert gnss and all(t == s.t_us + 50_000 for t, s in gnss)
+    # on the wire: a GPS_INPUT decodes to the time of validity, not the send time
+    dec = MavlinkDecoder()
+    decoded = [s for _, frame, _ in mavlink_events(run) for s in dec.feed_datagram(frame, 0)]
+    fixes = [s for s in decoded if isinstance(s, GnssSample)]
+    assert [f.t_us for f in fixes] == [s.t_us for _, s in gnss]
+    assert parse_udp_target("udp:127.0.0.1:14560") == ("127.0.0.1", 14560)
+    with pytest.raises(ValueError):
+        parse_udp_target("udp:14560")
