@@ -1,8 +1,8 @@
 """The daemon under load: 1 kHz HIGHRES_IMU + 10 Hz GPS_INPUT over loopback UDP into a real
 ``navd run`` subprocess, then a short sweep of faster IMU rates.
 
-    python benchmarks/daemon.py [--duration 60] [--sweep 2000,4000,8000,12000]
-                                [--sweep-duration 5] [--json PATH]
+    python benchmarks/daemon.py [--duration 60] [--sweep 2000,4000,8000,16000,32000]
+                                [--sweep-duration 5] [--json PATH] [--set KEY=VALUE]
 
 Figures (DESIGN §10 targets: <= 10 % of one core, p99 IMU-in -> ATTITUDE-out <= 2 ms, no loss):
   CPU          utime + stime of the daemon process (all its threads, /proc/<pid>/stat) over
@@ -136,10 +136,12 @@ def pct(v: list[float], p: float) -> float:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=60.0, help="1 kHz phase, seconds")
-    ap.add_argument("--sweep", default="2000,4000,8000,12000",
+    ap.add_argument("--sweep", default="2000,4000,8000,16000,32000",
                     help="IMU rates (Hz) to try after the 1 kHz phase ('' = none)")
     ap.add_argument("--sweep-duration", type=float, default=5.0, help="seconds per sweep step")
     ap.add_argument("--json", help="write the figures to this file")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="passed to navd run, e.g. daemon.event_loop=asyncio")
     a = ap.parse_args(argv)
     sweep = [float(x) for x in a.sweep.split(",") if x.strip()]
     # The receiver thread shares the GIL with the pacing loop; at the default 5 ms switch
@@ -165,7 +167,9 @@ def main(argv: list[str] | None = None) -> int:
     notify.bind(notify_path)
     notify.settimeout(300)
     log = open(tmp / "navd.log", "wb")  # noqa: SIM115 - closed below
-    proc = subprocess.Popen([sys.executable, "-m", "navd", "run", "--config", str(cfg)],
+    navd_set = [arg for kv in a.set for arg in ("--set", kv)]
+    proc = subprocess.Popen([sys.executable, "-m", "navd", "run", "--config", str(cfg),
+                             *navd_set],
                             stdout=log, stderr=log, cwd=ROOT,
                             env={**os.environ, "NOTIFY_SOCKET": notify_path})
     rx = AttitudeReceiver(port_out)

@@ -26,10 +26,11 @@ import can
 import numpy as np
 
 from firmware_sim.csvio import write_table
+from firmware_sim.polarization import PolMavlinkEncoder
 from firmware_sim.run import SimRun
 from firmware_sim.transport.dronecan_tx import DronecanTx
 from firmware_sim.transport.mavlink_tx import MavlinkTx
-from navd.types import GnssSample, ImuSample
+from navd.types import GnssSample, ImuSample, PolSample
 
 __all__ = [
     "GNSS_MESSAGES",
@@ -60,25 +61,23 @@ class StreamStats:
     max_late_s: float = 0.0  # how far behind its deadline the worst send was
 
 
-def timed_samples(run: SimRun) -> Iterator[tuple[int, ImuSample | GnssSample]]:
+def timed_samples(run: SimRun) -> Iterator[tuple[int, ImuSample | GnssSample | PolSample]]:
     """(send time µs on the sensor clock, sample), non-decreasing in send time.
 
-    Polarization readings are not streamed (their MAVLink message is navd's private
-    dialect, which the daemon's MAVLink input does not decode yet).
+    GNSS fixes go out at their arrival time, IMU samples and polarization readings at their
+    own time stamp.
     """
     arrival = dict(zip(run.gnss["t_us"].tolist(), run.gnss["t_arrival_us"].tolist(),
                        strict=True))
     for s in run.samples():
-        if isinstance(s, GnssSample):
-            yield arrival[s.t_us], s
-        elif isinstance(s, ImuSample):
-            yield s.t_us, s
+        yield (arrival[s.t_us] if isinstance(s, GnssSample) else s.t_us), s
 
 
 def mavlink_events(run: SimRun, imu_message: str = "HIGHRES_IMU",
                    gnss_message: str = "GPS_INPUT", sysid: int = 1, compid: int = 1
                    ) -> Iterator[tuple[int, bytes, bool]]:
-    """(send time µs, one MAVLink frame, is_imu)."""
+    """(send time µs, one MAVLink frame, is_imu); polarization readings (scenarios with a
+    ``[polarization]`` sensor) as NAVD_SKY_POLARIZATION."""
     if imu_message not in IMU_MESSAGES or gnss_message not in GNSS_MESSAGES:
         raise ValueError(f"unsupported message {imu_message}/{gnss_message}")
     tx = MavlinkTx(sysid, compid)
@@ -87,21 +86,25 @@ def mavlink_events(run: SimRun, imu_message: str = "HIGHRES_IMU",
     gnss_encoders: dict[str, Callable[[GnssSample], bytes]] = {
         "GPS_INPUT": tx.gps_input, "GPS_RAW_INT": tx.gps_raw_int, "HIL_GPS": tx.hil_gps}
     enc_gnss = gnss_encoders[gnss_message]
+    pol = PolMavlinkEncoder(sysid)  # navd's private NAVD_SKY_POLARIZATION, compid 158
     for t, s in timed_samples(run):
         if isinstance(s, ImuSample):
             yield t, enc_imu(s), True
-        else:
+        elif isinstance(s, GnssSample):
             yield t, enc_gnss(s), False
+        else:
+            yield t, pol.encode(s), False
 
 
 def dronecan_events(run: SimRun, node_id: int = 42, gnss_ecef: bool = True
                     ) -> Iterator[tuple[int, list[can.Message], bool]]:
-    """(send time µs, the frames of one transfer, is_imu)."""
+    """(send time µs, the frames of one transfer, is_imu).  Polarization readings have no
+    DroneCAN message and are not sent."""
     tx = DronecanTx(node_id)
     for t, s in timed_samples(run):
         if isinstance(s, ImuSample):
             yield t, tx.raw_imu(s), True
-        else:
+        elif isinstance(s, GnssSample):
             yield t, tx.fix2(s, with_ecef=gnss_ecef), False
 
 

@@ -37,6 +37,7 @@ from collections.abc import Callable, Coroutine, Sequence
 from typing import Any, cast
 
 from navd.config import ConfigError
+from navd.core.aiding.dov import dov_status
 from navd.core.aiding.polarization import build_polarization
 from navd.core.estimator import Estimator
 from navd.daemon_config import DaemonConfig, load_daemon_config
@@ -343,7 +344,7 @@ class Daemon:
             "state": self.state(),
             "uptime_s": round(time.monotonic() - self._t0, 1),
             "t_us": self.est.t_us,
-            "estimator": self.est.status(),
+            "estimator": {**self.est.status(), **dov_status(self.est)},
             "inputs": self.sources.counters(),
             "outputs": {s.name: s.counters() for s in self.sinks},
             "queue": {"capacity": self.queue.maxsize, "size": self.queue.qsize(),

@@ -80,6 +80,7 @@ class MavlinkSection:
     raw_gyro_rps_per_lsb: float = 0.0
     raw_accel_mps2_per_lsb: float = 0.0
     uere_m: float = 3.0
+    polarization: bool = False
 
     def validate(self) -> None:
         s = "mavlink"
@@ -130,6 +131,7 @@ class MavlinkSection:
             geoid_sep_m=self.geoid_sep_m,
             uere_m=self.uere_m,
             use_receive_time=self.use_receive_time,
+            polarization=self.polarization,
         )
 
 

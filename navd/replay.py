@@ -14,7 +14,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from navd.config import ConfigError, EstimatorConfig, load_config, parse_override
+from navd.config import ConfigError, load_config, parse_override
 from navd.core.estimator import Estimator
 from navd.io.replay import ReadReport, ReplayFormatError, SolutionWriter, merge, read_gnss, read_imu
 from navd.types import GnssSample, ImuSample
@@ -99,11 +99,10 @@ def main(argv: list[str] | None = None) -> int:
     if a.rate is None:
         a.rate = 50.0
     try:
-        cfg = EstimatorConfig.from_dict(load_config(a.config, a.set))
+        est = _build(a)
     except ConfigError as exc:
         print(f"navd replay: config error: {exc}", file=sys.stderr)
         return 2
-    est = Estimator(cfg)
     rep = ReadReport()
     imu_path, gnss_path = Path(a.imu), Path(a.gnss)
     for p in (imu_path, gnss_path):
@@ -230,12 +229,21 @@ def _aiding(path: str | None) -> contextlib.AbstractContextManager[AidingWriter 
     return cm()
 
 
+def _build(a: argparse.Namespace) -> Estimator:
+    """The estimator exactly as the daemon builds it (DOV grid, polarization aiding)."""
+    from navd.core.aiding.polarization import build_polarization
+    from navd.setup import build_estimator
+
+    tables = load_config(a.config, a.set)
+    return build_estimator(tables, pol=build_polarization(tables))
+
+
 def _replay_log(a: argparse.Namespace) -> int:
     """Read a flight log into samples and replay them through :func:`run_replay`."""
     from navd.io.logs import LogFormatError, LogOptions, read_log, write_reference
 
     try:
-        cfg = EstimatorConfig.from_dict(load_config(a.config, a.set))
+        est = _build(a)
     except ConfigError as exc:
         print(f"navd replay: config error: {exc}", file=sys.stderr)
         return 2
@@ -258,7 +266,6 @@ def _replay_log(a: argparse.Namespace) -> int:
         src = data.reference.source or "none in the log"
         print(f"navd replay: {n} reference attitudes ({src}) -> {a.reference_out}",
               file=sys.stderr)
-    est = Estimator(cfg)
     out = Path(a.out)
     tmp = out.with_suffix(out.suffix + ".part")
     with open(tmp, "w") as fh, _aiding(a.aiding_out) as aid:

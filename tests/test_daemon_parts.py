@@ -232,3 +232,34 @@ def test_stream_sends_gnss_at_arrival_with_time_of_validity() -> None:
     assert parse_udp_target("udp:127.0.0.1:14560") == ("127.0.0.1", 14560)
     with pytest.raises(ValueError):
         parse_udp_target("udp:14560")
+
+
+def test_polarization_readings_stream_over_mavlink_into_the_estimator() -> None:
+    from firmware_sim import generate, load_scenario
+    from navd.daemon import make_estimator
+    from navd.io.mavlink import MavlinkInputConfig
+
+    run = generate(load_scenario("pol_moving", overrides={"duration_s": 20.0}), seed=1)
+    frames = [f for _, f, _ in mavlink_events(run)]
+    ref = list(run.pol_samples())
+    # off by default: the private message is an unknown frame, counted, never a sample
+    off = MavlinkDecoder()
+    assert not [s for f in frames for s in off.feed_datagram(f, 0)
+                if isinstance(s, PolSample)]
+    assert off.counters["unknown_msgid"] >= len(ref)
+    on = MavlinkDecoder(MavlinkInputConfig(polarization=True))
+    tables = load_config(None, ["polarization.enabled=true", "mavlink.polarization=true",
+                                "polarization.mount_roll_deg=0", "polarization.mount_pitch_deg=0",
+                                "polarization.mount_yaw_deg=0"])
+    assert DaemonConfig.from_dict(tables).mavlink.input_config().polarization
+    est = make_estimator(tables)
+    got = []
+    for f in frames:
+        for s in on.feed_datagram(f, 0):
+            est.push(s)
+            if isinstance(s, PolSample):
+                got.append(s)
+    assert [s.t_us for s in got] == [s.t_us for s in ref]
+    assert all(abs(a.aop_rad - b.aop_rad) < 1e-6 for a, b in zip(got, ref, strict=True))
+    assert on.counters["pol_ok"] == len(ref) and on.counters["unknown_msgid"] == 0
+    assert est.counters["pol_accepted"] > 0.9 * len(ref)

@@ -245,3 +245,42 @@ def test_traditional_mode_aligns_from_first_course_and_flags_it() -> None:
     assert bool(s.aligned[-1])
     assert s.counters.get("course_accepted", 0) == 0  # aligned once, never a course update
     assert abs(s.euler_err_deg[-1, 2]) < 10.0
+
+
+def test_wild_fix_at_startup_or_from_the_future_does_not_poison_navigation() -> None:
+    run = generate(load_scenario("car480", {"duration_s": 60.0}), seed=5, progress=False)
+    e = Estimator(cfg(*initial_heading_config(run, 0.0)))
+    first_gnss = True
+    for smp in run.samples():
+        if isinstance(smp, GnssSample) and first_gnss:
+            first_gnss = False
+            # a fix 1000 km away while levelling, then one stamped 10 s in the future
+            e.push(GnssSample(smp.t_us, smp.lat_rad + 0.16, smp.lon_rad, smp.alt_m, 0.0, 0.0,
+                              0.0, 1.0, 1.0, 0.1))
+            e.push(GnssSample(smp.t_us + 10_000_000, smp.lat_rad, smp.lon_rad, smp.alt_m,
+                              0.0, 0.0, 0.0, 1.0, 1.0, 0.1))
+        e.push(smp)
+    c = e.counters
+    assert c["gnss_from_future"] == 1
+    assert c["gnss_start_disagree"] >= 1
+    assert c.get("gnss_absurd_jump", 0) == 0
+    assert c["pos_accepted"] > 500
+    k = len(run.truth_t_us) - 1
+    d = (e.pos[:2] - run.truth_pos[k, :2]) * 6.37e6
+    assert math.hypot(d[0], d[1]) < 10.0
+
+
+def test_navigation_restarts_when_every_fix_disagrees() -> None:
+    """A state that is wrong by > 100 km (e.g. started from a bad fix) recovers."""
+    run = generate(load_scenario("car480", {"duration_s": 60.0}), seed=6, progress=False)
+    e = Estimator(cfg(*initial_heading_config(run, 0.0)))
+    shift = 0.16  # 1000 km
+    for smp in run.samples():
+        if isinstance(smp, GnssSample) and smp.t_us < 5_000_000:
+            smp = GnssSample(smp.t_us, smp.lat_rad + shift, smp.lon_rad, smp.alt_m, smp.vel_n,
+                             smp.vel_e, smp.vel_d, smp.h_acc_m, smp.v_acc_m, smp.vel_acc_mps)
+        e.push(smp)
+    assert e.counters["reinit_gnss_jump"] == 1
+    k = len(run.truth_t_us) - 1
+    d = (e.pos[:2] - run.truth_pos[k, :2]) * 6.37e6
+    assert math.hypot(d[0], d[1]) < 10.0

@@ -97,7 +97,7 @@ def _nav_estimator(aid: PolarizationAiding, yaw_deg: float = 210.0,
     est = Estimator(cfg, pol=aid)
     g = 9.78
     t = 0
-    for _ in range(120):
+    for _ in range(220):  # two agreeing fixes are needed to start
         t += 10_000
         est.push(ImuSample(t, 10_000, 0.0, 0.0, 0.0, 0.0, 0.0, -g * 0.01))
         if t % 1_000_000 == 0:

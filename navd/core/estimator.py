@@ -56,6 +56,21 @@ class PolAiding(Protocol):
 _WAIT = 0
 _NAV = 1
 
+_MAX_GNSS_LEAD_US = 1_000_000  # a fix may be stamped at most this far ahead of the IMU
+_REINIT_AFTER_JUMPS = 20  # consecutive >100 km disagreements that restart navigation
+
+
+def _fixes_agree(a: GnssSample, b: GnssSample) -> bool:
+    """Two start-up fixes describe the same platform: positions within what the reported
+    velocity (and 50 m of noise) allows over their interval."""
+    dt = abs(b.t_us - a.t_us) * 1e-6
+    dn = (b.lat_rad - a.lat_rad) * 6.37e6
+    de = (b.lon_rad - a.lon_rad) * 6.37e6 * math.cos(a.lat_rad)
+    du = b.alt_m - a.alt_m
+    reach = 50.0 + (math.hypot(a.vel_n, a.vel_e) + 5.0) * dt
+    return dn * dn + de * de + du * du <= reach * reach
+
+
 # GNSS accuracies below these are treated as missing and replaced by config defaults
 _DEFAULT_H_ACC = 5.0
 _DEFAULT_V_ACC = 10.0
@@ -150,6 +165,8 @@ class Estimator:
         self._level_static = True
         self._level_t = 0.0
         self._pending_fix: GnssSample | None = None
+        self._fix_agreement = 0
+        self._absurd_in_row = 0
         self._level_fix0: GnssSample | None = None
         self._course_rejects = 0
         self.heading_aligned = False
@@ -266,7 +283,8 @@ class Estimator:
         ls[5] += s.dtheta_z
         self._level_n += 1
         self._level_t += dt
-        if self._level_t >= self.cfg.init.level_time and self._pending_fix is not None:
+        if (self._level_t >= self.cfg.init.level_time and self._pending_fix is not None
+                and self._fix_agreement >= 1):
             self._start_nav(self._pending_fix)
         elif self._level_t > 30.0:
             # no fix for a long time: restart the average so it describes the present
@@ -359,23 +377,37 @@ class Estimator:
         if self._last_gnss_t_us >= 0 and g.t_us <= self._last_gnss_t_us:
             cnt["gnss_duplicate" if g.t_us == self._last_gnss_t_us else "gnss_out_of_order"] += 1
             return False
+        if self.t_us >= 0 and g.t_us > self.t_us + _MAX_GNSS_LEAD_US:
+            # stamped ahead of the IMU clock: accepting it would make every real fix after it
+            # look out of order until the IMU caught up
+            cnt["gnss_from_future"] += 1
+            return False
         return True
 
     def _push_gnss(self, g: GnssSample) -> bool:
         if not self._gnss_valid(g):
             return False
         cnt = self.counters
-        self._last_gnss_t_us = g.t_us
         cnt["gnss"] += 1
         has_vel_h = math.isfinite(g.vel_n) and math.isfinite(g.vel_e)
         if self._stage == _WAIT:
             if not has_vel_h:
                 cnt["gnss_no_velocity"] += 1
                 return False
-            if self._level_fix0 is None:
+            self._last_gnss_t_us = g.t_us
+            # Navigation starts from a fix only when the one before agrees with it: a single
+            # wild fix must not become the starting position (every later real fix would be
+            # refused as an absurd jump).
+            p = self._pending_fix
+            if p is not None and _fixes_agree(p, g):
+                self._fix_agreement += 1
+            else:
+                if p is not None:
+                    cnt["gnss_start_disagree"] += 1
+                self._fix_agreement = 0
                 self._level_fix0 = g
             self._pending_fix = g
-            if self._level_t >= self.cfg.init.level_time:
+            if self._level_t >= self.cfg.init.level_time and self._fix_agreement >= 1:
                 self._start_nav(g)
                 return True
             return False
@@ -411,7 +443,14 @@ class Estimator:
         de = (g.lon_rad - self.pos[1]) * 6.4e6 * math.cos(self.pos[0])
         if dn * dn + de * de > 1e10:  # 100 km
             cnt["gnss_absurd_jump"] += 1
+            self._absurd_in_row += 1
+            if self._absurd_in_row >= _REINIT_AFTER_JUMPS:
+                # every fix for a while says we are elsewhere: it is our state that is wrong
+                cnt["reinit_gnss_jump"] += 1
+                self._reset_state()
             return False
+        self._absurd_in_row = 0
+        self._last_gnss_t_us = g.t_us
 
         vel_scale = 1.0
         if self._mctls is not None:

@@ -18,11 +18,11 @@ from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 
 from navd.diag import Counters, RateLimitedLog
-from navd.types import GnssSample, ImuSample
+from navd.types import GnssSample, ImuSample, PolSample
 
 G0_MPS2 = 9.80665  # standard gravity, the "g" of mG on the wire (MAVLink, ArduPilot, PX4)
 
-Sample = ImuSample | GnssSample
+Sample = ImuSample | GnssSample | PolSample
 SampleCallback = Callable[[Sample], None]
 
 

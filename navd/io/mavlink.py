@@ -48,7 +48,7 @@ import termios
 import tty
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import Any, Literal, cast
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -65,7 +65,7 @@ from navd.io.common import (
     imu_reject_reason,
     monotonic_us,
 )
-from navd.types import FixType, GnssSample, ImuSample, NavSolution
+from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample
 
 __all__ = [
     "MavlinkDecoder",
@@ -112,6 +112,8 @@ class MavlinkInputConfig:
     geoid_sep_m: geoid undulation N = h_ellipsoid - H_msl, used where only MSL is sent.
     use_receive_time: stamp samples with the local receive clock instead of the sensor time
         (for senders whose time fields are zero or unrelated between IMU and GNSS).
+    polarization: also accept navd's NAVD_SKY_POLARIZATION (private dialect, id 44000,
+        :mod:`navd.io.polarization`) as PolSample.
     """
 
     imu_messages: frozenset[str] = frozenset({"HIGHRES_IMU"})
@@ -130,6 +132,7 @@ class MavlinkInputConfig:
     default_v_acc_m: float = 10.0
     default_vel_acc_mps: float = 0.5
     use_receive_time: bool = False
+    polarization: bool = False
     limits: Limits = field(default_factory=Limits)
 
     def __post_init__(self) -> None:
@@ -253,6 +256,10 @@ class MavlinkDecoder:
             self._on_bad_data(m)
             return None
         if msgid == mavlink.MAVLINK_MSG_ID_UNKNOWN:
+            if self.config.polarization:
+                pol = self._polarization(bytes(m.data), recv_t_us)
+                if pol is not False:
+                    return pol
             # Without the message's CRC_EXTRA pymavlink cannot check the CRC, so this may be
             # noise whose fake header swallowed the start of a real frame.  Rescan it.
             self.counters.inc("unknown_msgid")
@@ -287,6 +294,28 @@ class MavlinkDecoder:
         self._last_gnss_t_us[key] = sample.t_us
         self.counters.inc("gnss_ok")
         return sample
+
+    def _polarization(self, frame: bytes, recv_t_us: int) -> PolSample | Literal[False] | None:
+        """NAVD_SKY_POLARIZATION -> PolSample; None if it is ours but refused (counted);
+        False if the frame is not ours, or ours with a bad CRC (then it may be noise)."""
+        from navd.io import polarization as pol_wire
+
+        why: dict[str, int] = {}
+        s = pol_wire.decode(frame, recv_t_us, use_receive_time=self.config.use_receive_time,
+                            counters=why)
+        if s is None and not why:
+            return False
+        src = (frame[5], frame[6]) if len(frame) > 6 else (0, 0)
+        if s is not None:
+            self.counters.inc("frames_ok")
+            if self.config.allow is not None and src not in self.config.allow:
+                self._reject("not_allowed", "source sysid=%d compid=%d", *src)
+                return None
+            self.counters.inc("pol_ok")
+            return s
+        for reason in why:
+            self._reject(reason, "NAVD_SKY_POLARIZATION from sysid=%d compid=%d", *src)
+        return False if "pol_wire_bad_crc" in why or "pol_wire_bad_frame" in why else None
 
     def _on_bad_data(self, m: Any) -> None:
         reason: str = m.reason

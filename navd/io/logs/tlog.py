@@ -138,7 +138,7 @@ def read_tlog(path: str | Path, options: LogOptions | None = None) -> LogData:
                 if isinstance(s, ImuSample):
                     imu.append(s)
                     imu_off.append(s.t_us - recv_us)
-                else:
+                elif isinstance(s, GnssSample):  # (PolSample only with polarization=True)
                     gnss.append(s)
                     gnss_off.append(s.t_us - recv_us)
     with contextlib.suppress(Exception):
