@@ -2,7 +2,9 @@
 
 Cases (20N 120E, 2020-06-01 18:12-18:53 UTC+8, through sunset; MEMS IMU of seed 001):
 
-* ``static``: the vehicle stands still, tilted by the nominal angle about body y (Table S1,
+* ``static``: the vehicle stands still (zero velocity), tilted by the nominal angle, swaying
+  slowly by +-1.7 deg about it as the seed's vehicle did (``--sway-deg 0``: frozen), about body
+  y (Table S1,
   "pitch", gamma_x in the seed's right-forward-up body) or body x (Table S2, "roll"), with
   the table's initial yaw; GNSS reports zero velocity (a zero-velocity update), so the
   heading is otherwise unobservable (12 deg/h gyro bias: no gyrocompassing).
@@ -63,6 +65,8 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
     table, tilt, variant, pol_on = case["table"], case["tilt"], case["variant"], case["pol"]
     ov = _case_overrides(table, tilt, variant)
     ov["duration_s"] = case["duration_s"]
+    if variant == "static" and case.get("sway_deg") is not None:
+        ov["trajectory.sway_deg"] = case["sway_deg"]
     sc = load_scenario(f"pol_{variant}", ov)
     run = generate(sc, seed=case["seed"])
     yaw0 = float(run.truth_euler[0, 2]) * R2D + YAW_ERROR_DEG
@@ -234,13 +238,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--variants", default="static,moving")
+    ap.add_argument("--sway-deg", type=float, default=None,
+                    help="static variant: amplitude of the vehicle's slow sway (default: the "
+                         "scenario's 1.7 deg, the seed's ~3.5 deg tilt range; 0 = frozen)")
     ap.add_argument("--no-wire", action="store_true",
                     help="push PolSamples directly instead of through MAVLink bytes")
     ap.add_argument("--json", help="write all records (with 1 Hz error histories) here")
     ap.add_argument("--png", help="write the error-curve figure here")
     a = ap.parse_args(argv)
     cases = [{"table": tb, "tilt": g, "variant": v, "pol": p, "duration_s": a.duration_s,
-              "seed": a.seed, "wire": not a.no_wire}
+              "seed": a.seed, "wire": not a.no_wire, "sway_deg": a.sway_deg}
              for v in a.variants.split(",") for tb in ("S1", "S2") for g in TILTS
              for p in (False, True)]
     t0 = time.perf_counter()

@@ -104,6 +104,10 @@ def static_profile(t: Arr, spec: StaticSpec) -> Profile:
     n = t.shape[0]
     euler = np.empty((n, 3))
     euler[:] = (spec.roll_deg * DEG, spec.pitch_deg * DEG, spec.yaw_deg * DEG)
+    if spec.sway_deg > 0.0:
+        w = 2.0 * np.pi / spec.sway_period_s
+        euler[:, 0] += spec.sway_deg * DEG * np.sin(w * t)
+        euler[:, 1] += spec.sway_deg * DEG * np.sin(w / 1.37 * t + 1.0)
     return Profile(euler, np.zeros((n, 3)))
 
 

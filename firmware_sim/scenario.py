@@ -110,12 +110,19 @@ class _Where:
 
 @dataclass(frozen=True)
 class StaticSpec(_Where):
-    """Vehicle at rest with a fixed attitude (noise studies, alignment)."""
+    """Vehicle at rest (zero velocity) with a fixed attitude, optionally swaying about it.
+
+    ``sway_deg`` > 0 adds slow roll and pitch oscillations of that amplitude (periods
+    ``sway_period_s`` and 1.37 times it), like the seed-000 vehicle whose real tilt wandered
+    over ~3.5 deg around each nominal value (Tables S1/S2, "Real gamma min~max").
+    """
 
     kind: str = _f("", "static")
     roll_deg: float = _f("deg", 0.0)
     pitch_deg: float = _f("deg", 0.0)
     yaw_deg: float = _f("deg", 0.0)
+    sway_deg: float = _f("deg", 0.0)
+    sway_period_s: float = _f("s", 120.0)
 
 
 @dataclass(frozen=True)
@@ -441,6 +448,9 @@ def _validate(sc: Scenario) -> None:
     _check(sc.duration_scale > 0.0, "duration_scale", "must be > 0")
     tr = sc.trajectory
     _check(-90.0 < tr.lat_deg < 90.0, "trajectory.lat_deg", "must be in (-90, 90) deg")
+    if isinstance(tr, StaticSpec):
+        _check(0.0 <= tr.sway_deg <= 30.0, "trajectory.sway_deg", "must be in [0, 30] deg")
+        _check(tr.sway_period_s > 0.0, "trajectory.sway_period_s", "must be > 0 s")
     if isinstance(tr, GroundSpec):
         for name in ("speed", "turns", "grade"):
             _check_events(getattr(tr, name), f"trajectory.{name}")

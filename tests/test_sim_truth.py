@@ -61,6 +61,7 @@ def test_car480_full_replay(car: SimRun) -> None:
 
 @pytest.mark.parametrize(("name", "duration"), [
     ("drive_long", 400.0), ("multirotor", 240.0), ("ship_dov", 3600.0), ("static", 200.0),
+    ("pol_static", 300.0),
 ])
 def test_scenario_replay(name: str, duration: float) -> None:
     run = generate(load_scenario(name, overrides={"duration_s": duration}), seed=3)
@@ -69,6 +70,14 @@ def test_scenario_replay(name: str, duration: float) -> None:
     assert att <= 1e-9
     assert vel <= 1e-6
     assert pos <= 1e-3
+
+
+def test_static_sway_spans_the_seed_tilt_range() -> None:
+    run = generate(load_scenario("pol_static", {"duration_s": 600.0,
+                                                "trajectory.pitch_deg": 30.0}), seed=1)
+    pitch = np.degrees(run.truth_euler[:, 1])
+    assert 3.0 < pitch.max() - pitch.min() < 3.6  # seed Table S1: 28.65~32.14 at 30 deg
+    assert np.abs(run.truth_vel_n).max() == 0.0
 
 
 def test_replay_detects_a_wrong_dov() -> None:
