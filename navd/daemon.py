@@ -68,11 +68,14 @@ _log = logging.getLogger("navd")
 # without vertical velocity, a DOV grid that ends): informational.  Every other counter
 # that grows is a refusal of input and gets a (rate-limited) warning.
 _INFO_COUNTERS = frozenset({"imu", "gnss", "nav_start", "heading_aligned_from_course",
-                            "gnss_delayed", "gnss_no_velocity", "dov_off_grid"})
+                            "heading_aligned_by_observability", "gnss_delayed",
+                            "gnss_no_velocity", "dov_off_grid"})
 
 
 def _is_refusal(counter: str) -> bool:
     return counter not in _INFO_COUNTERS and not counter.endswith("_accepted")
+
+
 # no sensor-time progress for this long (host time) means the input has stalled
 _STALL_S = 1.0
 

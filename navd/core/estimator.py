@@ -657,6 +657,10 @@ class Estimator:
             "robust": self.cfg.filter.robust,
             "profile": self.cfg.filter.profile,
             "course_update": self.course_status,
+            # sensor-time age of the last GNSS fix used; None before the first (absent GNSS
+            # shows as a growing age: the INS is coasting)
+            "gnss_age_s": ((self.t_us - self._last_gnss_t_us) * 1e-6
+                           if self._last_gnss_t_us >= 0 and self.t_us >= 0 else None),
             "counters": dict(self.counters),
             "gyro_bias_dph": [float(b) * 180.0 / math.pi * 3600.0 for b in self.bias_g],
             "accel_bias_mg": [float(b) / 9.80665e-3 for b in self.bias_a],
