@@ -186,19 +186,12 @@ def quat_to_mat_into(out: Arr, w: float, x: float, y: float, z: float) -> None:
 def orthonormalize(m: Arr, a: Arr, r: Arr) -> None:
     """Remove accumulated non-orthogonality of ``m`` in place; ``a``, ``r`` are 3x3 scratch."""
     # C <- C (3I - C^T C)/2: converges quadratically, error ~ (C^T C - I)^2.
+    mul3t_into(a, m, m)
     for i in range(3):
         for j in range(3):
-            s = 0.0
-            for k in range(3):
-                s += m[k, i] * m[k, j]
-            a[i, j] = -0.5 * s
+            a[i, j] *= -0.5
         a[i, i] += 1.5
-    for i in range(3):
-        for j in range(3):
-            s = 0.0
-            for k in range(3):
-                s += m[i, k] * a[k, j]
-            r[i, j] = s
+    mul3_into(r, m, a)
     for i in range(3):
         for j in range(3):
             m[i, j] = r[i, j]

@@ -72,6 +72,24 @@ def _require(cols: list[str], needed: Iterable[str], path: str) -> dict[str, int
     return idx
 
 
+def _rows(reader: Iterator[list[str]], n_cols: int, path: str, rep: ReadReport
+          ) -> Iterator[tuple[int, list[str]]]:
+    """(file line number, fields) of each non-blank row with the header's field count."""
+    for line, row in enumerate(reader, start=2):
+        if not row or (len(row) == 1 and not row[0].strip()):
+            continue
+        if len(row) != n_cols:
+            rep.add(path, line, f"{len(row)} fields, header has {n_cols}")
+            continue
+        yield line, row
+
+
+def _order_issue(t_us: int, last_t: int) -> str | None:
+    if last_t >= 0 and t_us <= last_t:
+        return ("duplicate" if t_us == last_t else "non-monotonic") + f" t_us {t_us} after {last_t}"
+    return None
+
+
 def _floats(row: list[str], idx: dict[str, int], names: Iterable[str]) -> list[float] | str:
     out: list[float] = []
     for n in names:
@@ -96,12 +114,7 @@ def read_imu(path: str | Path, report: ReadReport | None = None) -> Iterator[Imu
         idx = _require(cols, IMU_INC_COLS if inc else IMU_RATE_COLS, p)
         names = IMU_INC_COLS[2:] if inc else IMU_RATE_COLS[1:]
         last_t = -1
-        for line, row in enumerate(reader, start=2):
-            if not row or (len(row) == 1 and not row[0].strip()):
-                continue
-            if len(row) != len(cols):
-                rep.add(p, line, f"{len(row)} fields, header has {len(cols)}")
-                continue
+        for line, row in _rows(reader, len(cols), p, rep):
             try:
                 t_us = int(row[idx["t_us"]])
                 dt_us = int(row[idx["dt_us"]]) if inc else (t_us - last_t if last_t >= 0 else 0)
@@ -112,9 +125,8 @@ def read_imu(path: str | Path, report: ReadReport | None = None) -> Iterator[Imu
             if isinstance(vals, str):
                 rep.add(p, line, vals)
                 continue
-            if last_t >= 0 and t_us <= last_t:
-                rep.add(p, line, ("duplicate" if t_us == last_t else "non-monotonic")
-                        + f" t_us {t_us} after {last_t}")
+            if (why := _order_issue(t_us, last_t)) is not None:
+                rep.add(p, line, why)
                 continue
             if not inc and last_t < 0:
                 # rate form: the first row only starts the clock
@@ -141,12 +153,7 @@ def read_gnss(path: str | Path, report: ReadReport | None = None) -> Iterator[Gn
         has_vel = all(c in idx for c in GNSS_ECEF_VEL)
         has_pos = all(c in idx for c in GNSS_ECEF_POS)
         last_t = -1
-        for line, row in enumerate(reader, start=2):
-            if not row or (len(row) == 1 and not row[0].strip()):
-                continue
-            if len(row) != len(cols):
-                rep.add(p, line, f"{len(row)} fields, header has {len(cols)}")
-                continue
+        for line, row in _rows(reader, len(cols), p, rep):
             try:
                 t_us = int(row[idx["t_us"]])
             except ValueError:
@@ -170,9 +177,8 @@ def read_gnss(path: str | Path, report: ReadReport | None = None) -> Iterator[Gn
                     rep.add(p, line, q)
                     continue
                 pos_e = (q[0], q[1], q[2])
-            if last_t >= 0 and t_us <= last_t:
-                rep.add(p, line, ("duplicate" if t_us == last_t else "non-monotonic")
-                        + f" t_us {t_us} after {last_t}")
+            if (why := _order_issue(t_us, last_t)) is not None:
+                rep.add(p, line, why)
                 continue
             last_t = t_us
             rep.rows += 1

@@ -102,6 +102,7 @@ from numba.experimental import jitclass  # type: ignore[attr-defined]
 
 from navd.core._jit import jit
 from navd.core.earth import mat_ne_into, radii
+from navd.core.rotation import mul3_into
 
 Arr = npt.NDArray[np.float64]
 IArr = npt.NDArray[np.int64]
@@ -209,18 +210,8 @@ def _epoch_cov_into(sinv: Arr, m3: Arr, tmp: Arr, sth: Arr, bk: Arr, sig2: float
         m3[a, a] += sig2
     if not _inv3_sym(tmp, m3):
         return False
-    for a in range(3):
-        for b in range(3):
-            s = 0.0
-            for c in range(3):
-                s += tmp[a, c] * bk[c, b]
-            m3[a, b] = s
-    for a in range(3):
-        for b in range(3):
-            s = 0.0
-            for c in range(3):
-                s += bk[a, c] * m3[c, b]
-            sinv[a, b] = s
+    mul3_into(m3, tmp, bk)
+    mul3_into(sinv, bk, m3)
     return True
 
 
