@@ -67,6 +67,10 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
     ov["duration_s"] = case["duration_s"]
     if variant == "static" and case.get("sway_deg") is not None:
         ov["trajectory.sway_deg"] = case["sway_deg"]
+    if case.get("accel_bias_mg") is not None:
+        ov["imu.accel_bias_sigma_mps2"] = case["accel_bias_mg"] * 9.80665e-3
+    if case.get("vrw") is not None:
+        ov["imu.vrw_mps_per_sqrt_s"] = case["vrw"]
     sc = load_scenario(f"pol_{variant}", ov)
     run = generate(sc, seed=case["seed"])
     yaw0 = float(run.truth_euler[0, 2]) * R2D + YAW_ERROR_DEG
@@ -74,6 +78,10 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
                  f"init.heading_sd_deg={HEADING_SD_DEG}"]
     if variant == "moving":
         overrides.append("filter.mode=traditional")
+    if case.get("accel_bias_mg") is not None:
+        overrides.append(f"imu.accel_bias_sd_mg={case['accel_bias_mg']}")
+    if case.get("vrw") is not None:
+        overrides.append(f"imu.accel_vrw_mps_per_sqrt_s={case['vrw']}")
     cfg = EstimatorConfig.from_dict(load_config(None, overrides))
     ps = sc.polarization
     aid = PolarizationAiding.from_config({
@@ -192,6 +200,39 @@ def print_table(records: list[dict[str, Any]]) -> None:
                 print(line)
 
 
+def print_ensemble(records: list[dict[str, Any]]) -> None:
+    """Monte Carlo table: the ensemble sigma is the RMS over seeds of each run's second-half
+    RMS (the accelerometer bias, hence most of the static error, is a fresh draw per seed);
+    ``filter_sd`` is the filter's own 1-sigma of the rotation about the vertical at the end,
+    averaged over seeds, for consistency."""
+    for variant in ("static", "moving"):
+        for pol_on in (False, True):
+            recs = [r for r in records if r["variant"] == variant and r["pol"] == pol_on]
+            if not recs:
+                continue
+            seeds = sorted({r["seed"] for r in recs})
+            print(f"\n== {variant}, POL {'on' if pol_on else 'off'}: ensemble over "
+                  f"{len(seeds)} seeds ({seeds[0]}..{seeds[-1]}), deg ==")
+            print("table tilt | heading sigma  worst  | phiD sigma  filter_sd | pitch  roll  | "
+                  "accepted  low_dop")
+            for table in ("S1", "S2"):
+                for tilt in TILTS:
+                    rs = [r for r in recs if r["table"] == table and r["tilt_deg"] == tilt]
+                    if not rs:
+                        continue
+
+                    def ens(key: str, rs: list[dict[str, Any]] = rs) -> float:
+                        return float(np.sqrt(np.mean([r[key] ** 2 for r in rs])))
+                    worst = max(r["heading_rms_deg"] for r in rs)
+                    fsd = float(np.mean([r["final_phiD_sd_deg"] for r in rs]))
+                    acc = int(np.mean([r["counters"].get("pol_accepted", 0) for r in rs]))
+                    low = int(np.mean([r["counters"].get("pol_low_dop", 0) for r in rs]))
+                    print(f"{table:5s} {tilt:4d} | {_fmt(ens('heading_rms_deg')):>13s} "
+                          f"{_fmt(worst):>6s} | {_fmt(ens('phiD_rms_deg')):>10s} "
+                          f"{_fmt(fsd):>9s} | {_fmt(ens('pitch_rms_deg')):>6s} "
+                          f"{_fmt(ens('roll_rms_deg')):>5s} | {acc:8d} {low:8d}")
+
+
 def plot(records: list[dict[str, Any]], path: str) -> None:
     import matplotlib
 
@@ -236,27 +277,41 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration-s", type=float, default=2460.0,
                     help="run length (the seed's window 18:12-18:53 is 2460 s)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--seeds", type=int, default=1,
+                    help="Monte Carlo: run seeds seed..seed+N-1 and print the ensemble table")
+    ap.add_argument("--pol", default="off,on", help="which of POL off/on to run")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--variants", default="static,moving")
     ap.add_argument("--sway-deg", type=float, default=None,
                     help="static variant: amplitude of the vehicle's slow sway (default: the "
                          "scenario's 1.7 deg, the seed's ~3.5 deg tilt range; 0 = frozen)")
+    ap.add_argument("--accel-bias-mg", type=float, default=None,
+                    help="1-sigma accelerometer bias of the simulated IMU and of the filter's "
+                         "prior (default: the MEMS grade's 5 mg)")
+    ap.add_argument("--vrw", type=float, default=None,
+                    help="accelerometer velocity random walk of the simulated IMU and of the "
+                         "filter, m/s/sqrt(s) (default: the MEMS grade's 0.3)")
     ap.add_argument("--no-wire", action="store_true",
                     help="push PolSamples directly instead of through MAVLink bytes")
     ap.add_argument("--json", help="write all records (with 1 Hz error histories) here")
     ap.add_argument("--png", help="write the error-curve figure here")
     a = ap.parse_args(argv)
+    pols = [{"off": False, "on": True}[x] for x in a.pol.split(",")]
     cases = [{"table": tb, "tilt": g, "variant": v, "pol": p, "duration_s": a.duration_s,
-              "seed": a.seed, "wire": not a.no_wire, "sway_deg": a.sway_deg}
+              "seed": sd, "wire": not a.no_wire, "sway_deg": a.sway_deg,
+              "accel_bias_mg": a.accel_bias_mg, "vrw": a.vrw}
              for v in a.variants.split(",") for tb in ("S1", "S2") for g in TILTS
-             for p in (False, True)]
+             for p in pols for sd in range(a.seed, a.seed + a.seeds)]
     t0 = time.perf_counter()
     if a.jobs > 1:
         with ProcessPoolExecutor(a.jobs) as ex:
             records = list(ex.map(run_case, cases))
     else:
         records = [run_case(c) for c in cases]
-    print_table(records)
+    if a.seeds > 1:
+        print_ensemble(records)
+    else:
+        print_table(records)
     print(f"\n{len(cases)} runs of {a.duration_s:.0f} s in {time.perf_counter() - t0:.0f} s")
     if a.json:
         with open(a.json, "w") as fh:

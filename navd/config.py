@@ -91,6 +91,8 @@ def _convert(section: str, key: str, value: Any, unit: str, kind: type) -> Any:
                 or not all(isinstance(v, int | float) and not isinstance(v, bool)
                            for v in value)):
             raise ConfigError(f"{where} must be a list of 3 numbers in {unit or 'SI'}")
+        if not all(math.isfinite(float(v)) for v in value):
+            raise ConfigError(f"{where} must be finite, got {value!r}")
         return tuple(float(v) * factor for v in value)
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise ConfigError(f"{where} must be a number in {unit}, got {value!r}")
@@ -148,6 +150,12 @@ class ImuSection:
     accel_vrw: float = _f(0.3, "mps_per_sqrt_s")
     gyro_bias_sd: float = _f(12.0, "deg_per_h")
     accel_bias_sd: float = _f(5.0, "mg")
+    # known biases (measured = true + bias, body FRD): a calibration's offsets or biases
+    # learned on an earlier run; the initial estimate, with gyro/accel_bias_sd its 1-sigma
+    gyro_bias: tuple[float, float, float] = field(
+        default=(0.0, 0.0, 0.0), metadata={"unit": "deg_per_h", "kind": "tuple"})
+    accel_bias: tuple[float, float, float] = field(
+        default=(0.0, 0.0, 0.0), metadata={"unit": "mg", "kind": "tuple"})
     gyro_bias_rw: float = _f(0.1, "deg_per_h_per_sqrt_h")
     accel_bias_rw: float = _f(1e-5, "mps2_per_sqrt_s")
     max_accel: float = _f(50.0 * G0, "mps2")

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
 import importlib
 import json
 import logging
@@ -36,7 +37,8 @@ import time
 from collections.abc import Callable, Coroutine, Sequence
 from typing import Any, cast
 
-from navd.config import ConfigError
+from navd import bias_store
+from navd.config import ConfigError, EstimatorConfig
 from navd.core.aiding.dov import dov_status
 from navd.core.aiding.polarization import build_polarization
 from navd.core.estimator import Estimator
@@ -116,6 +118,14 @@ class Daemon:
     def __init__(self, cfg: DaemonConfig, *, record_path: str | None = None,
                  notifier: SdNotifier | None = None, extra_sinks: Sequence[Sink] = (),
                  handle_signals: bool = True) -> None:
+        tables, self.bias_store_state = bias_store.apply(cfg.tables, cfg.bias_store, time.time())
+        if self.bias_store_state.startswith("refused"):
+            _log.warning("learned IMU biases %s", self.bias_store_state)
+        elif cfg.bias_store.path:
+            _log.info("learned IMU biases: %s", self.bias_store_state)
+        if tables is not cfg.tables:  # the estimator and any recording see the biases used
+            cfg = dataclasses.replace(cfg, tables=tables,
+                                      estimator=EstimatorConfig.from_dict(tables))
         self.cfg = cfg
         self.est = make_estimator(cfg.tables)  # raises ConfigError on a bad [dov]/[polarization]
         self.notifier = notifier if notifier is not None else SdNotifier()
@@ -232,7 +242,26 @@ class Daemon:
         if self.recorder is not None:
             self.recorder.close()
 
+    def save_biases(self) -> bool:
+        """Write the learned biases to ``[bias_store] path`` if they are known well enough."""
+        s = self.cfg.bias_store
+        if not s.path:
+            return False
+        rec = bias_store.snapshot(self.est, s, time.time())
+        if rec is None:
+            return False
+        try:
+            bias_store.save(s.path, rec)
+        except OSError as exc:
+            self.rlog.warn("bias_store", "cannot save learned IMU biases to %s: %s", s.path,
+                           exc)
+            return False
+        self.bias_store_state = f"saved {s.path}"
+        return True
+
     def _finish(self) -> None:
+        if self.save_biases():
+            _log.info("learned IMU biases saved to %s", self.cfg.bias_store.path)
         status = self.status()
         if self.zenoh_sink is not None and self.cfg.zenoh.status:
             self.zenoh_sink.publish_status(status)
@@ -277,6 +306,7 @@ class Daemon:
     async def _status_loop(self) -> None:
         d = self.cfg.daemon
         next_log = time.monotonic() + d.log_period_s
+        next_save = time.monotonic() + self.cfg.bias_store.save_period_s
         seen = dict(self.est.counters)
         while True:
             await asyncio.sleep(d.status_period_s)
@@ -292,6 +322,9 @@ class Daemon:
             seen = now_counts
             if self.recorder is not None:
                 self.recorder.flush()
+            if time.monotonic() >= next_save:
+                next_save += self.cfg.bias_store.save_period_s
+                self.save_biases()
             if time.monotonic() >= next_log:
                 next_log += d.log_period_s
                 _log.info("%s", self.log_line())
@@ -355,6 +388,7 @@ class Daemon:
             "latency_us": {s.name: s.latency.summary() for s in self.sinks},
             "rates_hz": self.rates_hz,
             "sink_errors": self.sink_errors,
+            "bias_store": self.bias_store_state,
         }
         if self.recorder is not None:
             out["recording"] = {"path": str(self.recorder.path),

@@ -1,4 +1,5 @@
-"""The daemon's own config sections: ``[daemon]``, ``[mavlink]``, ``[dronecan]``, ``[zenoh]``.
+"""The daemon's own config sections: ``[daemon]``, ``[mavlink]``, ``[dronecan]``, ``[zenoh]``,
+``[bias_store]``.
 
 Same rules as :mod:`navd.config`: the unit is in the key name (``status_period_s``,
 ``attitude_rate_hz``), every key is checked for type and range, and an error names the
@@ -15,6 +16,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from navd.bias_store import BiasStoreSection
 from navd.config import ConfigError, EstimatorConfig, load_config
 from navd.io.dronecan import DronecanConfig
 from navd.io.mavlink import GNSS_MESSAGES, IMU_MESSAGES, MavlinkInputConfig, parse_mavlink_url
@@ -206,6 +208,7 @@ _SECTIONS: dict[str, type[Any]] = {
     "mavlink": MavlinkSection,
     "dronecan": DronecanSection,
     "zenoh": ZenohSection,
+    "bias_store": BiasStoreSection,
 }
 
 
@@ -217,6 +220,7 @@ class DaemonConfig:
     mavlink: MavlinkSection = field(default_factory=MavlinkSection)
     dronecan: DronecanSection = field(default_factory=DronecanSection)
     zenoh: ZenohSection = field(default_factory=ZenohSection)
+    bias_store: BiasStoreSection = field(default_factory=BiasStoreSection)
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
     tables: dict[str, Any] = field(default_factory=dict)
 

@@ -41,7 +41,7 @@ def test_shipped_config_documents_every_daemon_key_with_the_defaults() -> None:
     doc = tomllib.loads((ROOT / "config" / "navd.toml").read_text())
     c = DaemonConfig.from_dict(doc)
     d = DaemonConfig.from_dict({})
-    for name in ("daemon", "mavlink", "dronecan", "zenoh"):
+    for name in ("daemon", "mavlink", "dronecan", "zenoh", "bias_store"):
         assert getattr(c, name) == getattr(d, name), name
         fields = set(type(getattr(d, name)).__dataclass_fields__)
         assert set(doc[name]) == fields, name

@@ -30,7 +30,8 @@ def test_unit_has_the_service_contract() -> None:
         "DynamicUser": "yes", "ProtectSystem": "strict", "ProtectHome": "yes",
         "NoNewPrivileges": "yes", "PrivateTmp": "yes", "CapabilityBoundingSet": "",
         "CacheDirectory": "navd",
-        "ExecStart": "/opt/navd/.venv/bin/navd run --config /etc/navd/navd.toml",
+        "ExecStart": "/opt/navd/.venv/bin/navd run --config /etc/navd/navd.toml "
+                     "--set bias_store.path=/var/lib/navd/imu_bias.json",
     }
     for k, v in want.items():
         assert d.get(k) == [v], (k, d.get(k))

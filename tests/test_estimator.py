@@ -11,9 +11,10 @@ import pytest
 
 from firmware_sim import SimRun, generate, load_scenario
 from firmware_sim.score import Score, initial_heading_config, score_run
-from navd.config import EstimatorConfig, load_config
+from navd.config import ConfigError, EstimatorConfig, load_config
 from navd.core.chi2 import chi2_quantile
 from navd.core.estimator import Estimator
+from navd.core.rotation import mat_to_euler
 from navd.types import GnssSample, ImuSample
 
 
@@ -284,3 +285,39 @@ def test_navigation_restarts_when_every_fix_disagrees() -> None:
     k = len(run.truth_t_us) - 1
     d = (e.pos[:2] - run.truth_pos[k, :2]) * 6.37e6
     assert math.hypot(d[0], d[1]) < 10.0
+
+
+def test_known_accel_bias_is_removed_before_levelling_and_seeds_the_estimate() -> None:
+    """At rest an accelerometer bias is indistinguishable from tilt: only a known bias
+    (calibration, or one learned on an earlier run) gives the true tilt."""
+    run = generate(load_scenario("static", {
+        "duration_s": 40.0, "imu.accel_bias_sigma_mps2": 0.3, "imu.vrw_mps_per_sqrt_s": 0.003,
+        "imu.gyro_bias_sigma_rps": 1e-5}), seed=3, progress=False)
+    ba_mg = np.asarray(run.accel_bias_mps2) / 9.80665e-3
+    bg_dph = np.asarray(run.gyro_bias_rps) * 180.0 / math.pi * 3600.0
+    assert np.hypot(ba_mg[0], ba_mg[1]) > 15.0  # > 0.8 deg of tilt if ignored
+    known = (f"imu.accel_bias_mg=[{ba_mg[0]}, {ba_mg[1]}, {ba_mg[2]}]",
+             f"imu.gyro_bias_deg_per_h=[{bg_dph[0]}, {bg_dph[1]}, {bg_dph[2]}]",
+             "imu.accel_bias_sd_mg=0.5", "imu.gyro_bias_sd_deg_per_h=1.0")
+    tilt_err = {}
+    for name, extra in (("known", known), ("unknown", ("imu.accel_bias_sd_mg=30",))):
+        e = Estimator(cfg(*initial_heading_config(run, 0.0), "init.level_time_s=5", *extra))
+        first_bias: np.ndarray | None = None
+        for smp in run.samples():
+            e.push(smp)
+            if first_bias is None and e.initialized:
+                first_bias = np.array(e.bias_a) / 9.80665e-3
+        assert first_bias is not None
+        if name == "known":
+            assert np.allclose(first_bias, ba_mg, atol=0.5)  # the estimate starts there
+        k = len(run.truth_t_us) - 1
+        d = np.array(mat_to_euler(e.mat_nb)) - run.truth_euler[k]
+        tilt_err[name] = math.degrees(math.hypot(d[0], d[1]))
+    assert tilt_err["known"] < 0.1
+    assert tilt_err["unknown"] > 0.5
+
+
+@pytest.mark.parametrize("bad", ["[1.0, 2.0]", "[1.0, nan, 0.0]", "[1.0, inf, 0.0]", "3.0"])
+def test_known_bias_config_must_be_three_finite_numbers(bad: str) -> None:
+    with pytest.raises(ConfigError, match="accel_bias_mg"):
+        cfg(f"imu.accel_bias_mg={bad}")

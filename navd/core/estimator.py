@@ -297,7 +297,9 @@ class Estimator:
         c = self.cfg
         ls = self._level_sum
         T = self._level_t
-        fx, fy, fz = ls[0] / T, ls[1] / T, ls[2] / T
+        # the known accelerometer bias comes off before levelling: at rest it is a tilt error
+        ba0 = c.imu.accel_bias
+        fx, fy, fz = ls[0] / T - ba0[0], ls[1] / T - ba0[1], ls[2] / T - ba0[2]
         # Levelling needs the mean specific force to be gravity alone: no turning and no
         # change of velocity over the window.  Per-sample accelerometer noise of a MEMS IMU
         # can exceed any useful threshold, so this is judged from the mean rate and the GNSS
@@ -333,8 +335,8 @@ class Estimator:
         self.vel_n[2] = fix.vel_d if math.isfinite(fix.vel_d) else 0.0
         if self.dov_field is not None:
             self.dov_on_grid = self.dov_field.eval_into(fix.lat_rad, fix.lon_rad, self.dov)
-        self.bias_g[:] = 0.0
-        self.bias_a[:] = 0.0
+        self.bias_g[:] = c.imu.gyro_bias
+        self.bias_a[:] = c.imu.accel_bias
         P = self.P
         P[:, :] = 0.0
         tilt_sd = c.init.tilt_sd if self._level_static else max(c.init.tilt_sd, 5.0 * math.pi
