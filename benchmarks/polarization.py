@@ -1,25 +1,33 @@
 """Seed-000 Tables S1/S2: INS/POL attitude errors per nominal tilt, polarization on and off.
 
-Cases (20N 120E, 2020-06-01 18:12-18:53 UTC+8, through sunset; MEMS IMU of seed 001):
+Cases (20N 120E, 2020-06-01 18:12-18:53 UTC+8, through sunset):
 
 * ``static``: the vehicle stands still (zero velocity), tilted by the nominal angle, swaying
   slowly by +-1.7 deg about it as the seed's vehicle did (``--sway-deg 0``: frozen), about body
-  y (Table S1,
-  "pitch", gamma_x in the seed's right-forward-up body) or body x (Table S2, "roll"), with
-  the table's initial yaw; GNSS reports zero velocity (a zero-velocity update), so the
-  heading is otherwise unobservable (12 deg/h gyro bias: no gyrocompassing).
+  y (Table S1, "pitch", gamma_x in the seed's right-forward-up body) or body x (Table S2,
+  "roll"), with the table's initial yaw; GNSS reports zero velocity (a zero-velocity
+  update), so the heading is otherwise unobservable (12 deg/h gyro bias: no gyrocompassing).
 * ``moving``: a car (scenario pol_moving, 5-12 m/s, gentle turns) with the polarization
   sensor *mounted* at the nominal tilt (a vehicle cannot drive at 90 deg pitch), filter in
   ``traditional`` mode (GNSS position + velocity, no course-as-heading update), so heading is
   observable from the INS only through accelerations.
 
+IMU: the scenarios' ``mems_seed001_h`` (seed 001's MEMS, 12 deg/h, 5 mg, 0.24 deg/sqrt(h),
+VRW 0.3 m/s/sqrt(h); ``--grade mems_seed001`` takes seed 001's VRW as printed, 0.3 m/s/sqrt(s);
+firmware_sim.scenario.GRADES says why).  The filter's IMU model is set to the simulated one.
+Prior knowledge of the biases: none (``--learn-s 0``), or what the filter learned on a drive
+of ``--learn-s`` seconds with the same IMU, kept through :mod:`navd.bias_store` as the daemon
+keeps it between runs.
+
 Every run starts with the heading 5 deg off (init.heading_source = config, 1-sigma 10 deg).
 Polarization readings go through the MAVLink wire format (encode -> decode) unless
 ``--no-wire``.  Errors are computed - true; "heading" is the ZYX yaw error, and ``phiD`` the
 rotation error about the local vertical (meaningful even at 90 deg pitch, where ZYX yaw and
-roll are undefined).  RMS over the second half of the run.
+roll are undefined).  RMS over the second half of the run; with ``--seeds N`` the table is the
+ensemble sigma over N seeds (each seed draws new IMU biases) next to the filter's own sigma.
 
-    python benchmarks/polarization.py [--duration-s 2460] [--jobs 2] [--json PATH] [--png PATH]
+    python benchmarks/polarization.py [--variants static,moving] [--seeds N] [--learn-s S]
+        [--grade G] [--duration-s 2460] [--jobs 2] [--json PATH] [--png PATH]
 """
 
 from __future__ import annotations
@@ -27,8 +35,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
+from functools import cache
 from typing import Any
 
 import numpy as np
@@ -36,6 +48,8 @@ import numpy as np
 from firmware_sim.polarization import PolMavlinkEncoder
 from firmware_sim.run import SimRun, generate
 from firmware_sim.scenario import load_scenario
+from navd import bias_store
+from navd.bias_store import BiasStoreSection
 from navd.config import EstimatorConfig, load_config
 from navd.core.aiding.polarization import PolarizationAiding
 from navd.core.estimator import Estimator
@@ -44,6 +58,7 @@ from navd.io.polarization import decode
 from navd.types import ImuSample, PolSample
 
 R2D = 180.0 / math.pi
+G_MG = 9.80665e-3  # m/s^2 per mg
 TILTS = (0, 15, 30, 45, 60, 75, 90)
 # initial yaw per nominal tilt, deg (seed 000, Tables S1 and S2)
 YAW_S1 = {g: 203.87 + g for g in TILTS}
@@ -60,6 +75,66 @@ def _case_overrides(table: str, tilt: float, variant: str) -> dict[str, Any]:
     return {"trajectory.yaw0_deg": yaw, f"polarization.mount_{axis}_deg": float(tilt)}
 
 
+def _imu_overrides(sc: Any) -> list[str]:
+    """The filter's IMU model set to the simulated IMU's (a filter tuned to its sensor)."""
+    i = sc.imu
+    return [f"imu.gyro_bias_sd_deg_per_h={i.gyro_bias_sigma_rps * R2D * 3600.0}",
+            f"imu.accel_bias_sd_mg={i.accel_bias_sigma_mps2 / G_MG}",
+            f"imu.gyro_arw_deg_per_sqrt_h={i.arw_rad_per_sqrt_s * R2D * 60.0}",
+            f"imu.accel_vrw_mps_per_sqrt_s={i.vrw_mps_per_sqrt_s}"]
+
+
+def _scenario_overrides(case: dict[str, Any]) -> dict[str, Any]:
+    ov: dict[str, Any] = {}
+    if case.get("grade"):
+        ov["imu.grade"] = case["grade"]
+    if case.get("accel_bias_mg") is not None:
+        ov["imu.accel_bias_sigma_mps2"] = case["accel_bias_mg"] * G_MG
+    if case.get("vrw") is not None:
+        ov["imu.vrw_mps_per_sqrt_s"] = case["vrw"]
+    return ov
+
+
+def learn_biases(case: dict[str, Any]) -> tuple[dict[str, Any], str]:
+    key = (case["seed"], case["learn_s"], case.get("grade"), case.get("accel_bias_mg"),
+           case.get("vrw"))
+    tables_json, state = _learn_cached(key)
+    return json.loads(tables_json), state
+
+
+@cache
+def _learn_cached(key: tuple[Any, ...]) -> tuple[str, str]:
+    seed, learn_s, grade, accel_bias_mg, vrw = key
+    tables, state = _learn({"seed": seed, "learn_s": learn_s, "grade": grade,
+                            "accel_bias_mg": accel_bias_mg, "vrw": vrw})
+    return json.dumps(tables), state
+
+
+def _learn(case: dict[str, Any]) -> tuple[dict[str, Any], str]:
+    """Drive first (scenario pol_moving, completed mode, no polarization) with the same IMU
+    (same seed and grade: the same constant biases), keep what the filter learned through
+    :mod:`navd.bias_store` (snapshot -> file -> apply, as the daemon does), and return the
+    config tables the static run starts from."""
+    sc = load_scenario("pol_moving", {"duration_s": case["learn_s"], **_scenario_overrides(case)})
+    run = generate(sc, seed=case["seed"])
+    tables = load_config(None, _imu_overrides(sc))
+    est = Estimator(EstimatorConfig.from_dict(tables))
+    for smp in run.samples():
+        if not isinstance(smp, PolSample):
+            est.push(smp)
+    store = BiasStoreSection(path="", max_gyro_sd_deg_per_h=1e9, max_accel_sd_mg=1e9)
+    rec = bias_store.snapshot(est, store, 0.0)
+    if rec is None:
+        raise RuntimeError("the drive did not start navigating")
+    with tempfile.TemporaryDirectory() as d:
+        path = os.path.join(d, "imu_bias.json")
+        bias_store.save(path, rec)
+        out, state = bias_store.apply(tables, replace(store, path=path), 0.0)
+    if not state.startswith("loaded"):
+        raise RuntimeError(state)
+    return out, state
+
+
 def run_case(case: dict[str, Any]) -> dict[str, Any]:
     """One run; returns the metrics and a 1 Hz error history for the plots."""
     table, tilt, variant, pol_on = case["table"], case["tilt"], case["variant"], case["pol"]
@@ -67,10 +142,7 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
     ov["duration_s"] = case["duration_s"]
     if variant == "static" and case.get("sway_deg") is not None:
         ov["trajectory.sway_deg"] = case["sway_deg"]
-    if case.get("accel_bias_mg") is not None:
-        ov["imu.accel_bias_sigma_mps2"] = case["accel_bias_mg"] * 9.80665e-3
-    if case.get("vrw") is not None:
-        ov["imu.vrw_mps_per_sqrt_s"] = case["vrw"]
+    ov.update(_scenario_overrides(case))
     sc = load_scenario(f"pol_{variant}", ov)
     run = generate(sc, seed=case["seed"])
     yaw0 = float(run.truth_euler[0, 2]) * R2D + YAW_ERROR_DEG
@@ -78,11 +150,12 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
                  f"init.heading_sd_deg={HEADING_SD_DEG}"]
     if variant == "moving":
         overrides.append("filter.mode=traditional")
-    if case.get("accel_bias_mg") is not None:
-        overrides.append(f"imu.accel_bias_sd_mg={case['accel_bias_mg']}")
-    if case.get("vrw") is not None:
-        overrides.append(f"imu.accel_vrw_mps_per_sqrt_s={case['vrw']}")
-    cfg = EstimatorConfig.from_dict(load_config(None, overrides))
+    tables = load_config(None, _imu_overrides(sc) + overrides)
+    learned = ""
+    if case.get("learn_s"):
+        base, learned = learn_biases(case)
+        tables["imu"] = base["imu"]
+    cfg = EstimatorConfig.from_dict(tables)
     ps = sc.polarization
     aid = PolarizationAiding.from_config({
         "mount_roll_deg": ps.mount_roll_deg, "mount_pitch_deg": ps.mount_pitch_deg,
@@ -93,12 +166,17 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
     assert geo is not None
     out.update({
         "table": table, "tilt_deg": tilt, "variant": variant, "pol": pol_on,
+        "learn_s": case.get("learn_s", 0.0),
         "initial_yaw_deg": YAW_S1[tilt] if table == "S1" else YAW_S2[tilt],
         "duration_s": case["duration_s"], "seed": case["seed"],
         "scatter_deg_min": float(geo["scatter_deg"].min()),
         "scatter_deg_max": float(geo["scatter_deg"].max()),
         "dop_true_min": float(geo["dop_true"].min()), "dop_true_max": float(geo["dop_true"].max()),
         "counters": {k: v for k, v in est.counters.items() if k.startswith("pol")},
+        "imu_grade": sc.imu.grade, "vrw_mps_per_sqrt_s": sc.imu.vrw_mps_per_sqrt_s,
+        "accel_bias_sigma_mg": sc.imu.accel_bias_sigma_mps2 / G_MG,
+        "true_accel_bias_mg": (np.asarray(run.accel_bias_mps2) / G_MG).tolist(),
+        "filter_accel_bias_sd_mg": cfg.imu.accel_bias_sd / G_MG, "bias_store": learned,
     })
     return out
 
@@ -159,6 +237,17 @@ def _fmt(x: float, nd: int = 3) -> str:
     if not math.isfinite(x):
         return "inf"
     return f"{x:.{nd}f}" if abs(x) < 1000 else f"{x:.0f}"
+
+
+def print_imu(records: list[dict[str, Any]]) -> None:
+    r = records[0]
+    sds = [x["filter_accel_bias_sd_mg"] for x in records if x["variant"] == "static"]
+    prior = (f"learned on a {r['learn_s']:.0f} s drive via navd.bias_store (filter accel bias "
+             f"1-sigma {min(sds):.2f}-{max(sds):.2f} mg)" if r.get("learn_s") else
+             f"none (filter accel bias 1-sigma {r['filter_accel_bias_sd_mg']:.2f} mg)")
+    print(f"IMU: {r['imu_grade'] or 'custom'}, accel bias 1-sigma "
+          f"{r['accel_bias_sigma_mg']:.2f} mg, VRW {r['vrw_mps_per_sqrt_s']:.4g} m/s/sqrt(s); "
+          f"prior bias knowledge: {prior}")
 
 
 def print_table(records: list[dict[str, Any]]) -> None:
@@ -285,6 +374,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sway-deg", type=float, default=None,
                     help="static variant: amplitude of the vehicle's slow sway (default: the "
                          "scenario's 1.7 deg, the seed's ~3.5 deg tilt range; 0 = frozen)")
+    ap.add_argument("--grade", default="",
+                    help="IMU grade of the simulated IMU (default: the scenarios' "
+                         "mems_seed001_h; mems_seed001 = seed 001's noise as printed)")
+    ap.add_argument("--learn-s", type=float, default=0.0,
+                    help="static variant: drive this long first (same IMU) and start from the "
+                         "biases it learned, through navd.bias_store (0 = no prior knowledge)")
     ap.add_argument("--accel-bias-mg", type=float, default=None,
                     help="1-sigma accelerometer bias of the simulated IMU and of the filter's "
                          "prior (default: the MEMS grade's 5 mg)")
@@ -299,7 +394,8 @@ def main(argv: list[str] | None = None) -> int:
     pols = [{"off": False, "on": True}[x] for x in a.pol.split(",")]
     cases = [{"table": tb, "tilt": g, "variant": v, "pol": p, "duration_s": a.duration_s,
               "seed": sd, "wire": not a.no_wire, "sway_deg": a.sway_deg,
-              "accel_bias_mg": a.accel_bias_mg, "vrw": a.vrw}
+              "accel_bias_mg": a.accel_bias_mg, "vrw": a.vrw, "grade": a.grade,
+              "learn_s": a.learn_s if v == "static" else 0.0}
              for v in a.variants.split(",") for tb in ("S1", "S2") for g in TILTS
              for p in pols for sd in range(a.seed, a.seed + a.seeds)]
     t0 = time.perf_counter()
@@ -308,6 +404,7 @@ def main(argv: list[str] | None = None) -> int:
             records = list(ex.map(run_case, cases))
     else:
         records = [run_case(c) for c in cases]
+    print_imu(records)
     if a.seeds > 1:
         print_ensemble(records)
     else:

@@ -126,6 +126,12 @@ def test_grades_match_the_seeds() -> None:
     mems = GRADES["mems_seed001"]
     assert mems["gyro_bias_sigma_rps"] == pytest.approx(12.0 * deg_h)
     assert mems["accel_bias_sigma_mps2"] == pytest.approx(5e-3 * 9.80665)
+    # the per-sqrt(h) reading of seed 001's VRW: 0.3 m/s/sqrt(h) = 0.005 m/s/sqrt(s)
+    h = GRADES["mems_seed001_h"]
+    assert h["vrw_mps_per_sqrt_s"] == pytest.approx(0.3 / math.sqrt(3600.0))
+    assert {k: v for k, v in h.items() if k != "vrw_mps_per_sqrt_s"} == {
+        k: v for k, v in mems.items() if k != "vrw_mps_per_sqrt_s"}
+    assert load_scenario("pol_static").imu.vrw_mps_per_sqrt_s == h["vrw_mps_per_sqrt_s"]
     nav = load_scenario("ship_dov").imu
     assert nav.gyro_bias_sigma_rps == pytest.approx(0.003 * deg_h)
     assert nav.accel_bias_sigma_mps2 == pytest.approx(1e-4)
