@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import logging
 import math
 import os
 import socket
@@ -560,3 +561,55 @@ def test_tcp_client_link() -> None:
             await server.wait_closed()
 
     asyncio.run(main())
+
+
+def test_tcp_link_reopens_after_the_peer_drops_and_returns(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """A dropped stream is reopened with a growing delay; a peer that is gone for a while
+    costs failed attempts (logged, counted as they succeed or fail), never the link."""
+    caplog.set_level(logging.INFO, logger="navd")
+
+    async def main() -> None:
+        sim = MavlinkTx()
+        conns = 0
+
+        async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            nonlocal conns
+            conns += 1
+            base = 100 * conns
+            # a partial frame at the end of the first connection must not poison the next
+            blob = b"".join(sim.gps_input(gnss(t_us=base + i)) for i in range(2))
+            writer.write(blob + (sim.gps_input(gnss(t_us=base + 9))[:20] if conns == 1 else b""))
+            await writer.drain()
+            writer.close()
+
+        server = await asyncio.start_server(serve, "127.0.0.1", 0)
+        port = server.sockets[0].getsockname()[1]
+        got: list[Sample] = []
+        dec = MavlinkDecoder(cfg())
+        link = await open_mavlink(f"tcp:127.0.0.1:{port}", dec, got.append)
+        link.reconnect_delays_s = (0.05, 0.1)
+        try:
+            await _wait_for(lambda: len(got) >= 2)
+            # the peer goes away entirely: reopening fails until it is back
+            server.close()
+            await server.wait_closed()
+            await _wait_for(lambda: dec.counters["link_lost"] >= 1)
+            await asyncio.sleep(0.4)
+            assert dec.counters["link_reopened"] == 0
+            server = await asyncio.start_server(serve, "127.0.0.1", port)
+            await _wait_for(lambda: len(got) >= 4, timeout_s=5.0)
+            assert [s.t_us for s in got] == [100, 101, 200, 201]
+            assert dec.counters["link_reopened"] >= 1
+            assert link.send(MavlinkEncoder().encode_heartbeat()) or True  # never raises
+        finally:
+            link.close()
+            server.close()
+            await server.wait_closed()
+        await asyncio.sleep(0.2)
+        n = conns
+        await asyncio.sleep(0.3)
+        assert conns == n  # closed: no more reconnect attempts
+
+    asyncio.run(main())
+    assert "reopen failed" in caplog.text and "reopened" in caplog.text

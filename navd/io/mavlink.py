@@ -831,6 +831,12 @@ class MavlinkLink:
         self._rx_transport: asyncio.BaseTransport | None = None
         self._tx_transport: asyncio.WriteTransport | None = None
         self._serial_fd: int | None = None
+        self._decoder: MavlinkDecoder | None = None
+        self._on_sample: SampleCallback | None = None
+        self._clock_us: Callable[[], int] = monotonic_us
+        self._closing = False
+        self._watch: asyncio.Task[None] | None = None
+        self.reconnect_delays_s: tuple[float, ...] = (0.5, 1.0, 2.0, 5.0)
 
     @classmethod
     async def open(
@@ -856,34 +862,77 @@ class MavlinkLink:
             transport, _ = await loop.create_datagram_endpoint(lambda: proto, **kw)
             link._udp = proto
             link._udp_transport = transport
-        elif addr.kind == "tcp":
-            sproto = MavlinkStreamProtocol(decoder, on_sample, clock_us)
-            transport2, _ = await loop.create_connection(lambda: sproto, addr.host, addr.port)
-            link._rx_transport = transport2
-            link._tx_transport = transport2
         else:
-            fd = os.open(addr.device, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
-            try:
-                _configure_serial(fd, addr.baud)
-                wfd = os.dup(fd)
-            except BaseException:
-                os.close(fd)
-                raise
-            sproto = MavlinkStreamProtocol(decoder, on_sample, clock_us)
-            # Two file objects on one tty: asyncio's pipe transports each own (and close)
-            # their descriptor.
-            rpipe = os.fdopen(fd, "rb", buffering=0)
-            wpipe = os.fdopen(wfd, "wb", buffering=0)
-            try:
-                rt, _ = await loop.connect_read_pipe(lambda: sproto, rpipe)
-                wt, _ = await loop.connect_write_pipe(_WriteOnlyProtocol, wpipe)
-            except BaseException:
-                rpipe.close()
-                wpipe.close()
-                raise
-            link._rx_transport = rt
-            link._tx_transport = wt
+            link._decoder, link._on_sample, link._clock_us = decoder, on_sample, clock_us
+            sproto = await link._open_stream()
+            link._watch = loop.create_task(link._keep_open(sproto), name=f"mavlink {url}")
         return link
+
+    async def _open_stream(self) -> MavlinkStreamProtocol:
+        """Connect a TCP or serial link; the transports replace any previous ones."""
+        addr = self.address
+        loop = asyncio.get_running_loop()
+        sproto = MavlinkStreamProtocol(self._decoder, self._on_sample, self._clock_us)
+        if addr.kind == "tcp":
+            transport2, _ = await loop.create_connection(lambda: sproto, addr.host, addr.port)
+            self._rx_transport = transport2
+            self._tx_transport = transport2
+            return sproto
+        fd = os.open(addr.device, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        try:
+            _configure_serial(fd, addr.baud)
+            wfd = os.dup(fd)
+        except BaseException:
+            os.close(fd)
+            raise
+        # Two file objects on one tty: asyncio's pipe transports each own (and close)
+        # their descriptor.
+        rpipe = os.fdopen(fd, "rb", buffering=0)
+        wpipe = os.fdopen(wfd, "wb", buffering=0)
+        try:
+            rt, _ = await loop.connect_read_pipe(lambda: sproto, rpipe)
+            wt, _ = await loop.connect_write_pipe(_WriteOnlyProtocol, wpipe)
+        except BaseException:
+            rpipe.close()
+            wpipe.close()
+            raise
+        self._rx_transport = rt
+        self._tx_transport = wt
+        return sproto
+
+    async def _keep_open(self, proto: MavlinkStreamProtocol) -> None:
+        """A TCP peer that restarts or a USB serial adapter that drops out must not need a
+        daemon restart: when the stream closes, reopen it with a growing delay (capped),
+        forgetting any partial frame, until :meth:`close`."""
+        where = self.address.device or f"{self.address.host}:{self.address.port}"
+        while not self._closing:
+            await asyncio.shield(proto.closed)
+            if self._closing:
+                return
+            for t in (self._rx_transport, self._tx_transport):
+                if t is not None and not t.is_closing():
+                    t.close()
+            self.counters.inc("link_lost")
+            _log.warning("MAVLink %s %s closed; reopening", self.address.kind, where)
+            attempt = 0
+            while not self._closing:
+                delay = self.reconnect_delays_s[min(attempt, len(self.reconnect_delays_s) - 1)]
+                await asyncio.sleep(delay)
+                if self._closing:
+                    return
+                try:
+                    if self._decoder is not None:
+                        self._decoder.reset()
+                    proto = await self._open_stream()
+                except (OSError, ValueError) as exc:
+                    attempt += 1
+                    if attempt == 1 or attempt % 20 == 0:  # rate-limited: one line per ~100 s
+                        _log.warning("MAVLink %s %s: reopen failed (%d attempts): %s",
+                                     self.address.kind, where, attempt, exc)
+                    continue
+                self.counters.inc("link_reopened")
+                _log.info("MAVLink %s %s reopened", self.address.kind, where)
+                break
 
     @property
     def peer(self) -> tuple[Any, ...] | None:
@@ -936,6 +985,9 @@ class MavlinkLink:
         return True
 
     def close(self) -> None:
+        self._closing = True
+        if self._watch is not None and not self._watch.done():
+            self._watch.cancel()
         for t in (self._udp_transport, self._rx_transport, self._tx_transport):
             if t is not None and not t.is_closing():
                 t.close()
