@@ -12,8 +12,12 @@ reassembly is done here, frame by frame, as libcanard does it:
   it; later frames must carry the same transfer ID and the alternating toggle bit (a frame
   with the wrong toggle is dropped, not the session, so a duplicated frame is harmless);
   every frame but the last must be full (8 bytes);
-* the transfer CRC (first two payload bytes of a multi-frame transfer) is checked by the
-  codec; a lost middle frame shows up as a toggle error and/or a CRC mismatch;
+* the transfer CRC (first two payload bytes of a multi-frame transfer) is checked; a lost
+  middle frame shows up as a toggle error and/or a CRC mismatch;
+* RawIMU, the 1 kHz message, is unpacked here (:func:`_unpack_raw_imu`: byte-aligned
+  little-endian fields, CRC-16-CCITT seeded with the type signature's CRC, 8 us a
+  transfer); the codec took ~210 us, a fifth of a core at 1 kHz.  Fix2 (bit-packed, 10 Hz)
+  still goes through the codec.  Tests check the two against each other;
 * a session with no end after ``transfer_timeout_s`` (100 ms) is evicted and counted.
 
 Inputs
@@ -40,11 +44,13 @@ Output
 from __future__ import annotations
 
 import asyncio
+import binascii
 import logging
 import math
+import struct
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import can
 import dronecan
@@ -90,6 +96,11 @@ _MIN_PAYLOAD = {
     FIX2_DTID: (_FIX2.get_min_bitlen() + 7) // 8,
 }
 _F16_MAX = 65504.0
+# RawIMU after its 56-bit time stamp: float32 integration_interval, float16[3]
+# rate_gyro_latest, float32[3] rate_gyro_integral, float16[3] accelerometer_latest,
+# float32[3] accelerometer_integral; then float16[<=36] covariance (tail array, unused)
+_RAW_IMU_BODY = struct.Struct("<f3e3f3e3f")
+_RAW_IMU_CRC0 = int(_RAW_IMU.base_crc)
 _MAX_TRANSFER_BYTES = 512  # larger than any accepted type; caps memory per session
 
 
@@ -129,6 +140,24 @@ class DronecanConfig:
             raise ValueError("nominal_imu_rate_hz must be > 0")
 
 
+class RawImuFields(NamedTuple):
+    """The RawIMU fields navd uses (SI, body FRD)."""
+
+    usec: int
+    integration_interval: float
+    rate_gyro_latest: tuple[float, float, float]
+    rate_gyro_integral: tuple[float, float, float]
+    accelerometer_latest: tuple[float, float, float]
+    accelerometer_integral: tuple[float, float, float]
+
+
+def _unpack_raw_imu(body: bytes) -> RawImuFields:
+    """RawIMU payload (CRC removed, at least 47 bytes) -> fields."""
+    v = _RAW_IMU_BODY.unpack_from(body, 7)
+    return RawImuFields(int.from_bytes(body[:7], "little"), v[0], v[1:4], v[4:7], v[7:10],
+                        v[10:13])
+
+
 class _Session:
     __slots__ = ("frames", "nbytes", "next_toggle", "start_us", "tid")
 
@@ -137,7 +166,7 @@ class _Session:
         self.start_us = start_us
         self.next_toggle = 0
         self.nbytes = 0
-        self.frames: list[Any] = []
+        self.frames: list[bytes] = []
 
 
 def _fix_type(mode: int, sub_mode: int) -> FixType:
@@ -234,7 +263,7 @@ class DronecanDecoder:
         tail = data[-1]
         sot, eot, toggle, tid = bool(tail & 0x80), bool(tail & 0x40), (tail >> 5) & 1, tail & 0x1F
         key = (src, dtid)
-        frame = transport.Frame(message_id=cid, data=data)
+        frame = data
         if sot:
             if key in self._sessions:
                 self._reject("transfer_restarted", "node %d dtid %d: new start before end", *key)
@@ -243,7 +272,7 @@ class DronecanDecoder:
                 self._reject("bad_toggle", "node %d dtid %d: start frame with toggle set", *key)
                 return None
             if eot:
-                single = self._complete([frame], dtid)
+                single = self._complete(cid, [frame], dtid)
                 return (src, dtid, now, single) if single is not None else None
             if len(data) != 8:
                 self._reject("bad_frame_len", "node %d dtid %d: short non-final frame", *key)
@@ -283,24 +312,35 @@ class DronecanDecoder:
         if not eot:
             return None
         del self._sessions[key]
-        payload = self._complete(sess.frames, dtid)
+        payload = self._complete(cid, sess.frames, dtid)
         return (src, dtid, sess.start_us, payload) if payload is not None else None
 
-    def _complete(self, frames: list[Any], dtid: int) -> Any:
-        t = transport.Transfer()
-        try:
-            t.from_frames(frames)
-        except transport.TransferError as exc:
-            reason = "bad_crc" if "CRC" in str(exc) else "bad_transfer"
-            self._reject(reason, "dtid %d: %s", dtid, str(exc)[:120])
-            return None
+    def _complete(self, cid: int, frames: list[bytes], dtid: int) -> Any:
+        """Payload of a reassembled transfer (toggles and transfer IDs already checked), or
+        None with the reason counted."""
+        if dtid == RAW_IMU_DTID and len(frames) > 1:
+            raw = b"".join([f[:-1] for f in frames])
+            body = raw[2:]
+            if binascii.crc_hqx(body, _RAW_IMU_CRC0) != raw[0] | (raw[1] << 8):
+                self._reject("bad_crc", "dtid %d: transfer CRC mismatch", dtid)
+                return None
+            payload: Any = None
+        else:
+            t = transport.Transfer()
+            try:
+                t.from_frames([transport.Frame(message_id=cid, data=f) for f in frames])
+            except transport.TransferError as exc:
+                reason = "bad_crc" if "CRC" in str(exc) else "bad_transfer"
+                self._reject(reason, "dtid %d: %s", dtid, str(exc)[:120])
+                return None
+            payload = t.payload
         # The codec decodes a short payload without complaint (missing bits read as 0 or
         # None), so length is checked here.
         n = _payload_len(frames)
         if n < _MIN_PAYLOAD[dtid]:
             self._reject("short_payload", "dtid %d: %d bytes < %d", dtid, n, _MIN_PAYLOAD[dtid])
             return None
-        return t.payload
+        return _unpack_raw_imu(body) if payload is None else payload
 
     def _decode(self, src: int, dtid: int, recv_t_us: int, p: Any) -> Sample | None:
         if dtid == RAW_IMU_DTID:
@@ -323,15 +363,15 @@ class DronecanDecoder:
             return None
         return usec
 
-    def _raw_imu(self, src: int, recv_t_us: int, p: Any) -> ImuSample | None:
-        t_us = self._stamp(int(p.timestamp.usec), recv_t_us, "imu")
+    def _raw_imu(self, src: int, recv_t_us: int, p: RawImuFields) -> ImuSample | None:
+        t_us = self._stamp(p.usec, recv_t_us, "imu")
         if t_us is None:
             return None
         key = (src, RAW_IMU_DTID)
         interval = float(p.integration_interval)
         if math.isfinite(interval) and interval > 0.0:
-            dth = tuple(float(v) for v in p.rate_gyro_integral)
-            dvl = tuple(float(v) for v in p.accelerometer_integral)
+            dth = p.rate_gyro_integral
+            dvl = p.accelerometer_integral
             dt_us = round(interval * 1e6)
             if dt_us <= 0 or not all_finite(*dth, *dvl):
                 self._reject("imu_nonfinite", "integrals %s %s over %r s", dth, dvl, interval)
@@ -351,8 +391,8 @@ class DronecanDecoder:
                 return None
             self._imu.note_time(key, t_us)
             return ImuSample(t_us, dt_us, dth[0], dth[1], dth[2], dvl[0], dvl[1], dvl[2])
-        gx, gy, gz = (float(v) for v in p.rate_gyro_latest)
-        ax, ay, az = (float(v) for v in p.accelerometer_latest)
+        gx, gy, gz = p.rate_gyro_latest
+        ax, ay, az = p.accelerometer_latest
         reason = imu_reject_reason(gx, gy, gz, ax, ay, az, self.config.limits)
         if reason is not None:
             self._reject(reason, "gyro=%s accel=%s", (gx, gy, gz), (ax, ay, az))
@@ -437,8 +477,8 @@ class DronecanDecoder:
         )
 
 
-def _payload_len(frames: list[Any]) -> int:
-    n = sum(len(f.bytes) - 1 for f in frames)
+def _payload_len(frames: list[bytes]) -> int:
+    n = sum(len(f) - 1 for f in frames)
     return n - 2 if len(frames) > 1 else n  # multi-frame transfers start with the CRC
 
 
