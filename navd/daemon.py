@@ -70,7 +70,7 @@ _log = logging.getLogger("navd")
 # without vertical velocity, a DOV grid that ends): informational.  Every other counter
 # that grows is a refusal of input and gets a (rate-limited) warning.
 _INFO_COUNTERS = frozenset({"imu", "gnss", "nav_start", "heading_aligned_from_course",
-                            "heading_aligned_by_observability", "gnss_delayed",
+                            "heading_aligned_by_observability", "gnss_delayed", "pol_delayed",
                             "gnss_no_velocity", "dov_off_grid"})
 
 

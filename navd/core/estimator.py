@@ -215,6 +215,25 @@ class Estimator:
         """
         return self._apply(m, chi2_gate, name)
 
+    def state_at(self, t_us: int) -> bool | None:
+        """Put the nominal state of time ``t_us`` in place, for an aid to linearise about.
+
+        A reading older than the newest IMU sample is linearised about the state at its own
+        time of validity (as GNSS is), its correction then applied to the present state.
+        Returns False when ``t_us`` is the present (nothing swapped), True when the recorded
+        state was swapped in (call :meth:`state_restore` before :meth:`fuse_block`), None
+        when that time is no longer kept.
+        """
+        if (self.t_us - t_us) * 2 <= self._imu_dt_us:
+            return False
+        if not st.history_swap(self._buf, float(t_us), 0.5 * self._imu_dt_us + 1.0):
+            return None
+        return True
+
+    def state_restore(self) -> None:
+        """Undo :meth:`state_at` (after True)."""
+        st.history_restore(self._buf)
+
     @property
     def meas_H(self) -> npt.NDArray[np.float64]:
         return self._H

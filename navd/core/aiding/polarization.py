@@ -231,7 +231,19 @@ class PolarizationAiding:
             cnt["pol_sun_too_low"] += 1
             return
         H = est.meas_H
-        alpha_hat, rho2, _ = pol_row(H, 0, est.mat_nb, self.mat_sb, s_n)
+        swapped = est.state_at(sample.t_us)
+        if swapped is None:
+            cnt["pol_too_old"] += 1
+            return
+        try:
+            # a late reading is compared with the attitude of its own time: in a 20 deg/s
+            # turn, 50 ms of transport delay would otherwise be a 1 deg AoP error
+            alpha_hat, rho2, _ = pol_row(H, 0, est.mat_nb, self.mat_sb, s_n)
+        finally:
+            if swapped:
+                est.state_restore()
+        if swapped:
+            cnt["pol_delayed"] += 1
         if rho2 < self.rho2_min or rho2 <= 0.0:
             cnt["pol_sun_near_boresight"] += 1
             return
