@@ -183,6 +183,9 @@ class GnssSection:
     min_pos_sd: float = _f(0.3, "m")
     min_vel_sd: float = _f(0.03, "mps")
     max_age: float = _f(500.0, "ms")
+    # fixes stamped this long after their time of validity (a receiver or autopilot that
+    # stamps on arrival); PX4's EKF2_GPS_DELAY, ArduPilot's GPS_DELAY_MS
+    delay: float = _f(0.0, "ms")
     use_position: bool = field(default=True, metadata={"kind": "bool"})
     use_velocity: bool = field(default=True, metadata={"kind": "bool"})
 

@@ -218,8 +218,9 @@ def test_delayed_gnss_is_fused_at_its_time_of_validity() -> None:
     run = generate(load_scenario("car480", {"gnss.latency_s": 0.2, "gnss.pos_sigma_h_m": 1.0,
                                             "gnss.pos_sigma_v_m": 1.0}), seed=4, progress=False)
     results = {}
-    for label, stamp in (("validity", False), ("arrival", True)):
-        e = Estimator(cfg(*initial_heading_config(run, 5.0)))
+    for label, stamp, delay in (("validity", False, 0), ("arrival", True, 0),
+                                ("arrival, delay_ms=200", True, 200)):
+        e = Estimator(cfg(*initial_heading_config(run, 5.0), f"gnss.delay_ms={delay}"))
         pos_err = []
         for smp in _arrival_order(run, stamp):
             e.push(smp)
@@ -230,12 +231,16 @@ def test_delayed_gnss_is_fused_at_its_time_of_validity() -> None:
         results[label] = (float(np.sqrt(np.mean(np.square(pos_err[600:])))), dict(e.counters))
     rms_ok, c_ok = results["validity"]
     rms_bad, _ = results["arrival"]
-    print(f"position RMS fused at validity {rms_ok:.2f} m, at arrival {rms_bad:.2f} m")
+    print(f"position RMS fused at validity {rms_ok:.2f} m, at arrival {rms_bad:.2f} m, "
+          f"at arrival with gnss.delay_ms=200 {results['arrival, delay_ms=200'][0]:.2f} m")
     assert c_ok["gnss_delayed"] > 4000
     assert c_ok.get("gnss_too_old", 0) <= 3  # only before the history covers the latency
     # 0.2 s at 10-24 m/s is metres of along-track error when fused at arrival
     assert rms_ok < 1.0
     assert rms_bad > 2.0 * rms_ok
+    # fixes stamped on arrival, with the receiver's delay configured: as good as stamped right
+    rms_cfg, c_cfg = results["arrival, delay_ms=200"]
+    assert rms_cfg < 1.1 * rms_ok and c_cfg["gnss_delayed"] > 4000
 
 
 def test_traditional_mode_aligns_from_first_course_and_flags_it() -> None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
+from dataclasses import replace
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -98,6 +99,7 @@ class Estimator:
         self.dov_field = dov_field
         self.dov_on_grid = False
         self.pol = pol
+        self._gnss_delay_us = round(self.cfg.gnss.delay * 1e6)
         c = self.cfg
         self._buf = np.zeros(st.SIZE)
         v = st.StateViews(self._buf)
@@ -192,6 +194,8 @@ class Estimator:
         if isinstance(sample, ImuSample):
             return self._push_imu(sample)
         if isinstance(sample, GnssSample):
+            if self._gnss_delay_us:
+                sample = replace(sample, t_us=sample.t_us - self._gnss_delay_us)
             return self._push_gnss(sample)
         if isinstance(sample, PolSample):
             if self.pol is None:
