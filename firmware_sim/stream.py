@@ -98,14 +98,16 @@ def mavlink_events(run: SimRun, imu_message: str = "HIGHRES_IMU",
 
 def dronecan_events(run: SimRun, node_id: int = 42, gnss_ecef: bool = True
                     ) -> Iterator[tuple[int, list[can.Message], bool]]:
-    """(send time µs, the frames of one transfer, is_imu).  Polarization readings have no
-    DroneCAN message and are not sent."""
+    """(send time µs, the frames of one transfer, is_imu).  Polarization readings go out as
+    navd's private SkyPolarization message."""
     tx = DronecanTx(node_id)
     for t, s in timed_samples(run):
         if isinstance(s, ImuSample):
             yield t, tx.raw_imu(s), True
         elif isinstance(s, GnssSample):
             yield t, tx.fix2(s, with_ecef=gnss_ecef), False
+        elif isinstance(s, PolSample):
+            yield t, tx.polarization(s), False
 
 
 class _Pacer:

@@ -263,3 +263,30 @@ def test_polarization_readings_stream_over_mavlink_into_the_estimator() -> None:
     assert all(abs(a.aop_rad - b.aop_rad) < 1e-6 for a, b in zip(got, ref, strict=True))
     assert on.counters["pol_ok"] == len(ref) and on.counters["unknown_msgid"] == 0
     assert est.counters["pol_accepted"] > 0.9 * len(ref)
+
+
+def test_polarization_readings_over_dronecan_into_the_estimator() -> None:
+    """The DroneCAN carrier: navd's private SkyPolarization message, same readings."""
+    from firmware_sim import generate, load_scenario
+    from firmware_sim.stream import dronecan_events
+    from navd.daemon import make_estimator
+    from navd.io.dronecan import DronecanConfig, DronecanDecoder
+
+    run = generate(load_scenario("pol_moving", overrides={"duration_s": 20.0}), seed=1)
+    ref = list(run.pol_samples())
+    tables = load_config(None, ["polarization.enabled=true", "polarization.mount_roll_deg=0",
+                                "polarization.mount_pitch_deg=0",
+                                "polarization.mount_yaw_deg=0"])
+    est = make_estimator(tables)
+    dec = DronecanDecoder(DronecanConfig(interface="virtual", nominal_imu_rate_hz=100.0))
+    got = []
+    for _, frames, _ in dronecan_events(run):
+        for f in frames:
+            for s in dec.feed(f, 0):
+                est.push(s)
+                if isinstance(s, PolSample):
+                    got.append(s)
+    assert [s.t_us for s in got] == [s.t_us for s in ref]
+    assert all(abs(a.aop_rad - b.aop_rad) < 1e-6 for a, b in zip(got, ref, strict=True))
+    assert dec.counters["pol_ok"] == len(ref)
+    assert est.counters["pol_accepted"] > 0.9 * len(ref)

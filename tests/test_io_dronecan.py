@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import asyncio
+import functools
 import itertools
 import math
 import os
 import uuid
 from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
 
 import can
 import dronecan
@@ -17,8 +20,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from firmware_sim.transport.dronecan_tx import DronecanTx
+from navd.core.sun import utc_to_gps_s
 from navd.io.common import Sample
 from navd.io.dronecan import (
+    POL_DTID,
+    POL_SIGNATURE,
     DronecanConfig,
     DronecanDecoder,
     DronecanEncoder,
@@ -27,7 +33,7 @@ from navd.io.dronecan import (
     open_bus,
     transfer_messages,
 )
-from navd.types import FixType, GnssSample, ImuSample, NavSolution
+from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample
 
 ECEF = (4_331_300.125, 567_537.25, 4_633_133.5)
 
@@ -440,3 +446,85 @@ def test_raw_imu_unpacker_agrees_with_the_dronecan_codec(
     assert f.rate_gyro_integral == tuple(float(v) for v in p.rate_gyro_integral)
     assert f.accelerometer_latest == tuple(float(v) for v in p.accelerometer_latest)
     assert f.accelerometer_integral == tuple(float(v) for v in p.accelerometer_integral)
+
+
+# -- navd's private polarization message -------------------------------------------------------
+
+_DSDL_NAVD = Path(__file__).resolve().parents[1] / "navd" / "io" / "dsdl" / "navd"
+
+
+@functools.cache
+def _codec_pol_type() -> Any:
+    """The dronecan package's own parse of navd's .uavcan file, registered with its codec."""
+    dronecan.load_dsdl(str(_DSDL_NAVD))
+    return dronecan.TYPENAMES["navd.equipment.SkyPolarization"]
+
+
+def _pol(t_us: int = 5_000_000, aop: float = 1.25, dop: float = 0.42) -> PolSample:
+    return PolSample(t_us=t_us, aop_rad=aop, dop=dop, utc_unix_s=1_590_999_000.25)
+
+
+def test_pol_type_signature_and_frames_match_the_dronecan_codec() -> None:
+    t = _codec_pol_type()
+    assert t.default_dtid == POL_DTID
+    assert t.get_data_type_signature() == POL_SIGNATURE
+    assert (t.get_min_bitlen() + 7) // 8 == 24
+    s = _pol()
+    tx = DronecanTx(node_id=33)
+    ours = tx.polarization(s, sensor_id=2)
+    m = t()
+    m.timestamp.usec = s.t_us
+    m.time_gps_usec = round(utc_to_gps_s(s.utc_unix_s) * 1e6)
+    m.aop, m.dop, m.sensor_id = s.aop_rad, s.dop, 2
+    ref = transfer_messages(m, 33, 0, tx.priority)
+    assert [(x.arbitration_id, bytes(x.data)) for x in ours] == [
+        (x.arbitration_id, bytes(x.data)) for x in ref]
+
+
+def test_pol_readings_decode_and_bad_ones_are_counted() -> None:
+    tx = DronecanTx(node_id=33)
+    dec = DronecanDecoder(virtual_cfg())
+    s = _pol()
+    out = feed(dec, tx.polarization(s))
+    assert len(out) == 1 and isinstance(out[0], PolSample)
+    p = out[0]
+    assert p.t_us == s.t_us and p.aop_rad == pytest.approx(s.aop_rad, abs=1e-7)
+    assert p.dop == pytest.approx(s.dop, abs=1e-7)
+    assert p.utc_unix_s == pytest.approx(s.utc_unix_s, abs=1e-6)
+    assert dec.counters["pol_ok"] == 1
+    assert feed(dec, tx.polarization(s)) == [] and dec.counters["pol_repeat"] == 1
+    bad = [_pol(t_us=6_000_000, aop=math.nan), _pol(t_us=6_100_000, aop=3.5),
+           _pol(t_us=6_200_000, dop=1.5),
+           PolSample(t_us=6_300_000, aop_rad=1.0, dop=0.4, utc_unix_s=math.nan),
+           _pol(t_us=0)]
+    for b in bad:
+        assert feed(dec, tx.polarization(b)) == []
+    c = dec.counters
+    assert c["pol_wire_bad_value"] == 3 and c["pol_wire_no_gps_time"] == 1
+    assert c["pol_no_timestamp"] == 1
+    frames = tx.polarization(_pol(t_us=7_000_000))
+    data = bytearray(frames[1].data)
+    data[0] ^= 0x01
+    frames[1] = can.Message(arbitration_id=frames[1].arbitration_id, data=bytes(data),
+                            is_extended_id=True)
+    assert feed(dec, frames) == [] and dec.counters["bad_crc"] == 1
+
+
+def test_pol_readings_reach_the_estimator_over_a_virtual_bus() -> None:
+    """Frames of a simulated polarization node through python-can's virtual bus."""
+    cfg = virtual_cfg()
+    tx_bus = can.Bus(interface="virtual", channel=cfg.channel)
+    rx_bus = open_bus(cfg)
+    try:
+        tx = DronecanTx(node_id=33)
+        for k in range(5):
+            for f in tx.polarization(_pol(t_us=1_000_000 + 100_000 * k)):
+                tx_bus.send(f)
+        dec = DronecanDecoder(cfg)
+        got: list[Sample] = []
+        while (m := rx_bus.recv(0.2)) is not None:
+            got += dec.feed(m, 0)
+        assert [s.t_us for s in got] == [1_000_000 + 100_000 * k for k in range(5)]
+    finally:
+        tx_bus.shutdown()
+        rx_bus.shutdown()

@@ -7,22 +7,30 @@ node that does not integrate.
 GnssSample -> uavcan.equipment.gnss.Fix2 (1063): lat/lon 1e-8 deg, heights mm (MSL =
 ellipsoid - ``geoid_sep_m``), NED velocity float32, covariance as AP_Periph sends it
 (6-element diagonal: h², h², v², s², s², s²), optional ECEF position/velocity.
+PolSample -> navd.equipment.SkyPolarization (20440, navd's private type,
+navd/io/dsdl/navd/equipment/): encoded here by hand (the dronecan package only knows the type
+after ``dronecan.load_dsdl``); tests compare the frames with the codec's, byte for byte.
 Frames carry 29-bit IDs, tail bytes and (multi-frame) the transfer CRC, from the dronecan
 package's transfer codec.  The transfer ID increments per data type, mod 32.
 """
 
 from __future__ import annotations
 
+import binascii
 import math
+import struct
 
 import can
 import dronecan
 from dronecan import transport
 
-from navd.types import FixType, GnssSample, ImuSample
+from navd.core.sun import utc_to_gps_s
+from navd.types import FixType, GnssSample, ImuSample, PolSample
 
 RAW_IMU_DTID = 1003
 FIX2_DTID = 1063
+POL_DTID = 20440
+POL_SIGNATURE = 0x53EF5B29B1B13DDF
 
 _MODE = {  # FixType -> (Fix2 mode, sub_mode)
     FixType.FIX_3D: (0, 0),
@@ -55,6 +63,27 @@ class DronecanTx:
             can.Message(arbitration_id=f.message_id, data=bytes(f.bytes), is_extended_id=True)
             for f in t.to_frames()
         ]
+
+    def polarization(self, s: PolSample, sensor_id: int = 0) -> list[can.Message]:
+        """One SkyPolarization transfer: time stamp = sensor clock, GPS time from UTC."""
+        gps_us = 0
+        if math.isfinite(s.utc_unix_s):
+            gps_us = max(0, round(utc_to_gps_s(s.utc_unix_s) * 1e6))
+        payload = (s.t_us.to_bytes(7, "little")
+                   + struct.pack("<QffB", gps_us, s.aop_rad, s.dop, sensor_id))
+        crc = binascii.crc_hqx(payload, binascii.crc_hqx(struct.pack("<Q", POL_SIGNATURE),
+                                                         0xFFFF))
+        data = struct.pack("<H", crc) + payload
+        tid = self._tid.get(POL_DTID, 0)
+        self._tid[POL_DTID] = (tid + 1) & 0x1F
+        cid = (self.priority << 24) | (POL_DTID << 8) | self.node_id
+        chunks = [data[i:i + 7] for i in range(0, len(data), 7)]
+        out = []
+        for k, c in enumerate(chunks):
+            tail = ((k == 0) << 7) | ((k == len(chunks) - 1) << 6) | ((k & 1) << 5) | tid
+            out.append(can.Message(arbitration_id=cid, data=c + bytes([tail]),
+                                   is_extended_id=True))
+        return out
 
     def raw_imu(self, s: ImuSample, integrated: bool = True) -> list[can.Message]:
         dt_s = s.dt_us * 1e-6

@@ -36,6 +36,8 @@ Inputs
     Time: ``timestamp.usec`` (bus-synchronised time, 0 when the node has none: such
     samples are rejected unless ``use_receive_time``).  A transfer repeating its node's
     previous time stamp (redundant interfaces) is dropped, never integrated twice.
+    navd.equipment.SkyPolarization (20440, navd's private type, navd/io/dsdl/): a skylight
+    polarization reading (docs/polarization.md) -> PolSample; GPS time -> UTC.
 Output
     uavcan.equipment.ahrs.Solution (1000): quaternion in x, y, z, w order (navd is w, x, y, z),
     float16; attitude 1-sigma as a diagonal roll/pitch/yaw covariance (rad²).
@@ -68,10 +70,13 @@ from navd.io.common import (
     imu_reject_reason,
     monotonic_us,
 )
-from navd.types import FixType, GnssSample, ImuSample, NavSolution
+from navd.io.polarization import reading_to_sample
+from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample
 
 __all__ = [
     "FIX2_DTID",
+    "POL_DTID",
+    "POL_SIGNATURE",
     "RAW_IMU_DTID",
     "SOLUTION_DTID",
     "DronecanConfig",
@@ -85,6 +90,10 @@ _log = logging.getLogger(__name__)
 
 RAW_IMU_DTID = 1003
 FIX2_DTID = 1063
+# navd's private message navd.equipment.SkyPolarization (navd/io/dsdl/; vendor-specific
+# message range 20000-21799); its DSDL signature, recomputed from the .uavcan file in tests
+POL_DTID = 20440
+POL_SIGNATURE = 0x53EF5B29B1B13DDF
 SOLUTION_DTID = 1000
 DEG = math.pi / 180.0
 
@@ -94,6 +103,7 @@ _SOLUTION = dronecan.TYPENAMES["uavcan.equipment.ahrs.Solution"]
 _MIN_PAYLOAD = {
     RAW_IMU_DTID: (_RAW_IMU.get_min_bitlen() + 7) // 8,
     FIX2_DTID: (_FIX2.get_min_bitlen() + 7) // 8,
+    POL_DTID: 24,
 }
 _F16_MAX = 65504.0
 # RawIMU after its 56-bit time stamp: float32 integration_interval, float16[3]
@@ -101,6 +111,11 @@ _F16_MAX = 65504.0
 # float32[3] accelerometer_integral; then float16[<=36] covariance (tail array, unused)
 _RAW_IMU_BODY = struct.Struct("<f3e3f3e3f")
 _RAW_IMU_CRC0 = int(_RAW_IMU.base_crc)
+# SkyPolarization after its 56-bit time stamp: uint64 time_gps_usec, float32 aop, float32
+# dop, uint8 sensor_id
+_POL_BODY = struct.Struct("<QffB")
+_POL_CRC0 = binascii.crc_hqx(struct.pack("<Q", POL_SIGNATURE), 0xFFFF)
+_OWN_UNPACK = {RAW_IMU_DTID: _RAW_IMU_CRC0, POL_DTID: _POL_CRC0}
 _MAX_TRANSFER_BYTES = 512  # larger than any accepted type; caps memory per session
 
 
@@ -199,6 +214,7 @@ class DronecanDecoder:
         self._timeout_us = round(cfg.transfer_timeout_s * 1e6)
         self._sessions: dict[tuple[int, int], _Session] = {}
         self._last_fix_t_us: dict[int, int] = {}
+        self._last_pol_t_us: dict[int, int] = {}
 
     @property
     def pending(self) -> int:
@@ -227,7 +243,8 @@ class DronecanDecoder:
             return []
         if sample is None:
             return []
-        self.counters.inc("imu_ok" if isinstance(sample, ImuSample) else "gnss_ok")
+        self.counters.inc("imu_ok" if isinstance(sample, ImuSample) else
+                          "pol_ok" if isinstance(sample, PolSample) else "gnss_ok")
         return [sample]
 
     def _reassemble(self, msg: can.Message, now: int) -> tuple[int, int, int, Any] | None:
@@ -318,10 +335,11 @@ class DronecanDecoder:
     def _complete(self, cid: int, frames: list[bytes], dtid: int) -> Any:
         """Payload of a reassembled transfer (toggles and transfer IDs already checked), or
         None with the reason counted."""
-        if dtid == RAW_IMU_DTID and len(frames) > 1:
+        crc0 = _OWN_UNPACK.get(dtid)
+        if crc0 is not None and len(frames) > 1:
             raw = b"".join([f[:-1] for f in frames])
             body = raw[2:]
-            if binascii.crc_hqx(body, _RAW_IMU_CRC0) != raw[0] | (raw[1] << 8):
+            if binascii.crc_hqx(body, crc0) != raw[0] | (raw[1] << 8):
                 self._reject("bad_crc", "dtid %d: transfer CRC mismatch", dtid)
                 return None
             payload: Any = None
@@ -340,11 +358,15 @@ class DronecanDecoder:
         if n < _MIN_PAYLOAD[dtid]:
             self._reject("short_payload", "dtid %d: %d bytes < %d", dtid, n, _MIN_PAYLOAD[dtid])
             return None
-        return _unpack_raw_imu(body) if payload is None else payload
+        if payload is not None:
+            return payload
+        return _unpack_raw_imu(body) if dtid == RAW_IMU_DTID else body
 
     def _decode(self, src: int, dtid: int, recv_t_us: int, p: Any) -> Sample | None:
         if dtid == RAW_IMU_DTID:
             return self._raw_imu(src, recv_t_us, p)
+        if dtid == POL_DTID:
+            return self._polarization(src, recv_t_us, p)
         fix = self._fix2(recv_t_us, p)
         if fix is not None:
             # Redundant interfaces deliver the same transfer twice.
@@ -353,6 +375,21 @@ class DronecanDecoder:
                 return None
             self._last_fix_t_us[src] = fix.t_us
         return fix
+
+    def _polarization(self, src: int, recv_t_us: int, body: bytes) -> PolSample | None:
+        t_us = self._stamp(int.from_bytes(body[:7], "little"), recv_t_us, "pol")
+        if t_us is None:
+            return None
+        gps_us, aop, dop, _sensor = _POL_BODY.unpack_from(body, 7)
+        out = reading_to_sample(t_us, gps_us, aop, dop)
+        if isinstance(out, str):
+            self._reject(out, "node %d: time_gps_usec=%d aop=%r dop=%r", src, gps_us, aop, dop)
+            return None
+        if self._last_pol_t_us.get(src) == out.t_us:
+            self.counters.inc("pol_repeat")  # the same transfer over redundant interfaces
+            return None
+        self._last_pol_t_us[src] = out.t_us
+        return out
 
     def _stamp(self, usec: int, recv_t_us: int, what: str) -> int | None:
         if self.config.use_receive_time:
@@ -529,7 +566,8 @@ class DronecanEncoder:
         return transfer_messages(m, self.node_id, self._next_tid(SOLUTION_DTID), self.priority)
 
 
-def open_bus(config: DronecanConfig, dtids: Iterable[int] = (RAW_IMU_DTID, FIX2_DTID)) -> Any:
+def open_bus(config: DronecanConfig,
+             dtids: Iterable[int] = (RAW_IMU_DTID, FIX2_DTID, POL_DTID)) -> Any:
     """Open the python-can bus named in config (SocketCAN needs no privileges to use)."""
     filters = None
     if config.kernel_filters:

@@ -26,7 +26,8 @@ from pathlib import Path
 from navd.core.sun import VALID_FROM_UNIX, gps_to_utc_unix
 from navd.types import PolSample
 
-__all__ = ["CRC_EXTRA", "DIALECT_XML", "MSG_ID", "crc_x25", "decode", "decode_payload"]
+__all__ = ["CRC_EXTRA", "DIALECT_XML", "MSG_ID", "crc_x25", "decode", "decode_payload",
+           "reading_to_sample"]
 
 MSG_ID = 44000
 CRC_EXTRA = 76
@@ -68,22 +69,27 @@ def decode_payload(payload: bytes, recv_t_us: int = 0, *, use_receive_time: bool
         _count(counters, "pol_wire_bad_length")
         return None
     t_us, gps_us, aop, dop, _sensor = _PAYLOAD.unpack(payload.ljust(PAYLOAD_LEN, b"\x00"))
-    if use_receive_time:
-        t_us = recv_t_us
-    elif t_us == 0:
-        _count(counters, "pol_wire_no_time")
+    out = reading_to_sample(recv_t_us if use_receive_time else t_us, gps_us, aop, dop)
+    if isinstance(out, str):
+        _count(counters, out)
         return None
+    return out
+
+
+def reading_to_sample(t_us: int, gps_us: int, aop: float, dop: float) -> PolSample | str:
+    """Wire fields (any carrier) -> PolSample, or the refusal reason: ``pol_wire_no_time``
+    (sensor time 0), ``pol_wire_no_gps_time`` (GPS time 0 or before 1972),
+    ``pol_wire_bad_value`` (AoP not in [0, pi), DoP not in [0, 1], NaN)."""
+    if t_us == 0:
+        return "pol_wire_no_time"
     if gps_us == 0:
-        _count(counters, "pol_wire_no_gps_time")
-        return None
+        return "pol_wire_no_gps_time"
     utc = gps_to_utc_unix(gps_us * 1e-6)
     if utc < VALID_FROM_UNIX:
-        _count(counters, "pol_wire_no_gps_time")
-        return None
+        return "pol_wire_no_gps_time"
     if not (math.isfinite(aop) and 0.0 <= aop < math.pi and math.isfinite(dop)
             and 0.0 <= dop <= 1.0):
-        _count(counters, "pol_wire_bad_value")
-        return None
+        return "pol_wire_bad_value"
     return PolSample(t_us=int(t_us), aop_rad=float(aop), dop=float(dop), utc_unix_s=utc)
 
 
