@@ -16,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 from tqdm import tqdm
 
+from firmware_sim.polarization import POL_COLUMNS
 from firmware_sim.scenario import scenario_dict
 from firmware_sim.sensors import GNSS_COLUMNS
 
@@ -73,7 +74,8 @@ def read_table(path: str | Path) -> dict[str, npt.NDArray[Any]]:
 
 
 def write_run(run: SimRun, out_dir: Path, progress: bool = False) -> None:
-    """Write imu.csv (increments form), gnss.csv, truth.csv and meta.json into ``out_dir``.
+    """Write imu.csv (increments form), gnss.csv, truth.csv, pol.csv (with a polarization
+    sensor) and meta.json into ``out_dir``.
 
     ``progress`` shows a tqdm bar over the rows written.
     """
@@ -98,6 +100,9 @@ def write_run(run: SimRun, out_dir: Path, progress: bool = False) -> None:
             run.truth_dov[:, 2],
         ]
         write_table(out_dir / "truth.csv", TRUTH_COLUMNS, truth_cols, bar)
+        if run.pol is not None:
+            write_table(out_dir / "pol.csv", POL_COLUMNS,
+                        [run.pol[k] for k in POL_COLUMNS], bar)
     meta = {
         "format": "firmware_sim run 1",
         "seed": run.seed,

@@ -16,14 +16,23 @@ from typing import TYPE_CHECKING
 
 from navd.config import ConfigError, load_config, parse_override
 from navd.core.estimator import Estimator
-from navd.io.replay import ReadReport, ReplayFormatError, SolutionWriter, merge, read_gnss, read_imu
-from navd.types import GnssSample, ImuSample
+from navd.io.replay import (
+    ReadReport,
+    ReplayFormatError,
+    SolutionWriter,
+    merge,
+    read_gnss,
+    read_imu,
+    read_pol,
+)
+from navd.types import GnssSample, ImuSample, PolSample
 
 if TYPE_CHECKING:
     from navd.io.logs import AidingWriter
 
 
-def run_replay(est: Estimator, samples: Iterable[ImuSample | GnssSample], writer: SolutionWriter,
+def run_replay(est: Estimator, samples: Iterable[ImuSample | GnssSample | PolSample],
+               writer: SolutionWriter,
                rate_hz: float = 50.0, progress_total: int | None = None,
                progress: bool = False, aiding: AidingWriter | None = None) -> int:
     """Push every sample; write solutions; return the number of rows written.
@@ -72,6 +81,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--config", help="TOML config (default: built-in defaults)")
     ap.add_argument("--imu", help="IMU CSV (rates or increments)")
     ap.add_argument("--gnss", help="GNSS CSV")
+    ap.add_argument("--pol", help="polarization CSV (t_us, aop_rad, dop, utc_unix_s), with "
+                                  "--imu/--gnss; needs [polarization] in the config")
     ap.add_argument("--recording", metavar="FILE",
                     help="a `navd run --record` file instead of --imu/--gnss: replays the "
                          "daemon's pushes with its config, output at its output instants")
@@ -105,16 +116,20 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     rep = ReadReport()
     imu_path, gnss_path = Path(a.imu), Path(a.gnss)
-    for p in (imu_path, gnss_path):
+    pol_path = Path(a.pol) if a.pol else None
+    for p in (imu_path, gnss_path, *([pol_path] if pol_path else [])):
         if not p.is_file():
             print(f"navd replay: no such file: {p}", file=sys.stderr)
             return 2
-    total = None if a.quiet else _count_lines(imu_path) + _count_lines(gnss_path)
+    total = None if a.quiet else (_count_lines(imu_path) + _count_lines(gnss_path)
+                                  + (_count_lines(pol_path) if pol_path else 0))
     out = Path(a.out)
     tmp = out.with_suffix(out.suffix + ".part")
     try:
         with open(tmp, "w") as fh, _aiding(a.aiding_out) as aid:
-            rows = run_replay(est, merge(read_imu(imu_path, rep), read_gnss(gnss_path, rep)),
+            pol = read_pol(pol_path, rep) if pol_path is not None else ()
+            rows = run_replay(est, merge(read_imu(imu_path, rep), read_gnss(gnss_path, rep),
+                                         pol),
                               SolutionWriter(fh), a.rate, total, progress=not a.quiet,
                               aiding=aid)
     except ReplayFormatError as exc:

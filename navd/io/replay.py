@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
-from navd.types import FixType, GnssSample, ImuSample, NavSolution
+from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample
 
 DEG = math.pi / 180.0
 
@@ -27,6 +27,7 @@ GNSS_COLS = ("t_us", "lat_deg", "lon_deg", "alt_m", "vel_n", "vel_e", "vel_d", "
              "v_acc_m", "vel_acc_mps")
 GNSS_ECEF_VEL = ("vel_x_ecef", "vel_y_ecef", "vel_z_ecef")
 GNSS_ECEF_POS = ("x_ecef", "y_ecef", "z_ecef")
+POL_COLS = ("t_us", "aop_rad", "dop", "utc_unix_s")
 SOLUTION_COLS = ("t_us", "roll_deg", "pitch_deg", "yaw_deg", "lat_deg", "lon_deg", "alt_m",
                  "vel_n", "vel_e", "vel_d", "roll_sd_deg", "pitch_sd_deg", "yaw_sd_deg",
                  "heading_aligned")
@@ -186,14 +187,40 @@ def read_gnss(path: str | Path, report: ReadReport | None = None) -> Iterator[Gn
                              vals[5], vals[6], vals[7], vals[8], FixType.FIX_3D, pos_e, vel_e)
 
 
-def merge(imu: Iterable[ImuSample], gnss: Iterable[GnssSample]
-          ) -> Iterator[ImuSample | GnssSample]:
-    """Time-ordered stream; a GNSS epoch at the same t_us follows the IMU sample."""
-    keyed_imu: Iterator[tuple[int, int, ImuSample | GnssSample]] = (
-        (s.t_us, 0, s) for s in imu)
-    keyed_gnss: Iterator[tuple[int, int, ImuSample | GnssSample]] = (
-        (s.t_us, 1, s) for s in gnss)
-    for _, _, s in heapq.merge(keyed_imu, keyed_gnss, key=lambda k: (k[0], k[1])):
+def read_pol(path: str | Path, report: ReadReport | None = None) -> Iterator[PolSample]:
+    """Yield polarization readings from a replay CSV (``POL_COLS``).  Only the row format
+    and the time order are checked here; the estimator judges the values (and counts)."""
+    rep = report if report is not None else ReadReport()
+    p = str(path)
+    with open(path, newline="") as fh:
+        reader = csv.reader(fh)
+        cols = _header(reader, p)
+        idx = _require(cols, POL_COLS, p)
+        last_t = -1
+        for line, row in _rows(reader, len(cols), p, rep):
+            try:
+                t_us = int(row[idx["t_us"]])
+                vals = [float(row[idx[c]]) for c in POL_COLS[1:]]
+            except ValueError:
+                rep.add(p, line, "not a number")
+                continue
+            if (why := _order_issue(t_us, last_t)) is not None:
+                rep.add(p, line, why)
+                continue
+            last_t = t_us
+            rep.rows += 1
+            yield PolSample(t_us, vals[0], vals[1], vals[2])
+
+
+def merge(imu: Iterable[ImuSample], gnss: Iterable[GnssSample],
+          pol: Iterable[PolSample] = ()) -> Iterator[ImuSample | GnssSample | PolSample]:
+    """Time-ordered stream; GNSS and then polarization at the same t_us follow the IMU
+    sample."""
+    Item = tuple[int, int, ImuSample | GnssSample | PolSample]
+    keyed_imu: Iterator[Item] = ((s.t_us, 0, s) for s in imu)
+    keyed_gnss: Iterator[Item] = ((s.t_us, 1, s) for s in gnss)
+    keyed_pol: Iterator[Item] = ((s.t_us, 2, s) for s in pol)
+    for _, _, s in heapq.merge(keyed_imu, keyed_gnss, keyed_pol, key=lambda k: (k[0], k[1])):
         yield s
 
 

@@ -30,7 +30,7 @@ from navd.core.rotation import mat_to_euler
 from navd.diag import Counters, RateLimitedLog
 from navd.io.common import RateIntegrator, Rejector
 from navd.io.replay import ReadReport, merge, read_gnss, read_imu
-from navd.types import FixType, GnssSample, ImuSample
+from navd.types import FixType, GnssSample, ImuSample, PolSample
 
 if TYPE_CHECKING:
     from navd.core.estimator import Estimator
@@ -269,7 +269,7 @@ class LogData:
             yield GnssSample(t[k], r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8],
                              FixType(fx[k]))
 
-    def samples(self) -> Iterator[ImuSample | GnssSample]:
+    def samples(self) -> Iterator[ImuSample | GnssSample | PolSample]:
         """The merged, time-ordered stream (a fix follows the IMU sample of the same time)."""
         return merge(self.imu_samples(), self.gnss_samples())
 
