@@ -38,7 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from navd import __version__
-from navd.config import G0, ConfigError
+from navd.config import G0, ConfigError, EstimatorConfig
 from navd.core.estimator import Estimator
 
 __all__ = ["SCHEMA", "BiasStoreSection", "apply", "save", "snapshot"]
@@ -82,7 +82,7 @@ def _vec3(d: dict[str, Any], key: str) -> list[float]:
     return out
 
 
-def _read(path: Path, s: BiasStoreSection, imu: dict[str, Any], now_unix_s: float
+def _read(path: Path, s: BiasStoreSection, prior: dict[str, float], now_unix_s: float
           ) -> dict[str, list[float]]:
     """The stored vectors, or ValueError naming why the file cannot be used."""
     try:
@@ -106,14 +106,13 @@ def _read(path: Path, s: BiasStoreSection, imu: dict[str, Any], now_unix_s: floa
                                   "accel_bias_mg", "accel_bias_sd_mg")}
     if min(v["gyro_bias_sd_deg_per_h"] + v["accel_bias_sd_mg"]) <= 0.0:
         raise ValueError("a 1-sigma is not positive")
-    # plausibility against the configured prior (defaults: 12 deg/h, 5 mg)
-    for key, sd_key, default in (("gyro_bias_deg_per_h", "gyro_bias_sd_deg_per_h", 12.0),
-                                 ("accel_bias_mg", "accel_bias_sd_mg", 5.0)):
-        prior = float(imu.get(sd_key, default))
+    # plausibility against the configured prior
+    for key, sd_key in (("gyro_bias_deg_per_h", "gyro_bias_sd_deg_per_h"),
+                        ("accel_bias_mg", "accel_bias_sd_mg")):
         worst = max(abs(x) for x in v[key])
-        if worst > 5.0 * prior:
+        if worst > 5.0 * prior[sd_key]:
             raise ValueError(f"{key} {worst:.3g} is beyond 5 sigma of the prior "
-                             f"{sd_key} = {prior:g}")
+                             f"{sd_key} = {prior[sd_key]:g}")
     return v
 
 
@@ -126,17 +125,23 @@ def apply(tables: dict[str, Any], s: BiasStoreSection, now_unix_s: float
     path = Path(s.path)
     if not path.exists():
         return tables, f"none yet: {path}"
-    imu = dict(tables.get("imu", {}))
+    table = tables.get("imu", {})
+    c = EstimatorConfig.from_dict(tables).imu  # validated, defaults filled in (SI)
+    # the configured prior, as written in the table (no unit round trip) or the default
+    prior = {"gyro_bias_sd_deg_per_h": float(table.get("gyro_bias_sd_deg_per_h",
+                                                       c.gyro_bias_sd * _DPH)),
+             "accel_bias_sd_mg": float(table.get("accel_bias_sd_mg", c.accel_bias_sd * _MG))}
     try:
-        v = _read(path, s, imu, now_unix_s)
+        v = _read(path, s, prior, now_unix_s)
     except ValueError as exc:
         return tables, f"refused: {path}: {exc}"
     g_sd = math.hypot(max(v["gyro_bias_sd_deg_per_h"]), s.repeat_gyro_sd_deg_per_h)
     a_sd = math.hypot(max(v["accel_bias_sd_mg"]), s.repeat_accel_sd_mg)
+    imu = dict(table)
     imu["gyro_bias_deg_per_h"] = v["gyro_bias_deg_per_h"]
     imu["accel_bias_mg"] = v["accel_bias_mg"]
-    imu["gyro_bias_sd_deg_per_h"] = min(float(imu.get("gyro_bias_sd_deg_per_h", 12.0)), g_sd)
-    imu["accel_bias_sd_mg"] = min(float(imu.get("accel_bias_sd_mg", 5.0)), a_sd)
+    imu["gyro_bias_sd_deg_per_h"] = min(prior["gyro_bias_sd_deg_per_h"], g_sd)
+    imu["accel_bias_sd_mg"] = min(prior["accel_bias_sd_mg"], a_sd)
     out = copy.deepcopy(tables)
     out["imu"] = imu
     return out, (f"loaded {path}: gyro {_fmt(v['gyro_bias_deg_per_h'])} deg/h "

@@ -25,12 +25,8 @@ import dronecan
 from dronecan import transport
 
 from navd.core.sun import utc_to_gps_s
+from navd.io.dronecan import FIX2_DTID, POL_DTID, POL_SIGNATURE, RAW_IMU_DTID
 from navd.types import FixType, GnssSample, ImuSample, PolSample
-
-RAW_IMU_DTID = 1003
-FIX2_DTID = 1063
-POL_DTID = 20440
-POL_SIGNATURE = 0x53EF5B29B1B13DDF
 
 _MODE = {  # FixType -> (Fix2 mode, sub_mode)
     FixType.FIX_3D: (0, 0),

@@ -442,13 +442,14 @@ class Estimator:
             return False
         # A fix older than the newest IMU sample is linearised about the state at its own
         # time of validity (history ring), not at arrival.
-        delayed = age_us * 2 > self._imu_dt_us
+        swapped = self.state_at(g.t_us)
+        if swapped is None:
+            cnt["gnss_too_old"] += 1
+            return False
+        delayed = swapped
         if delayed:
             cnt["gnss_delayed"] += 1
-            if not st.history_swap(self._buf, float(g.t_us), 0.5 * self._imu_dt_us + 1.0):
-                cnt["gnss_too_old"] += 1
-                return False
-            st.history_restore(self._buf)
+            self.state_restore()
         if self.dov_field is not None:
             self.dov_on_grid = self.dov_field.eval_into(float(self.pos[0]), float(self.pos[1]),
                                                         self.dov)
@@ -496,11 +497,11 @@ class Estimator:
 
     def _swap_in(self, t_us: int, delayed: bool) -> None:
         if delayed:
-            st.history_swap(self._buf, float(t_us), 0.5 * self._imu_dt_us + 1.0)
+            self.state_at(t_us)
 
     def _swap_out(self, delayed: bool) -> None:
         if delayed:
-            st.history_restore(self._buf)
+            self.state_restore()
 
     def _mctls_weight(self, g: GnssSample, s_sd: float) -> float:
         """Feed MCTLS; return the variance divisor for this epoch's velocity (0 = skip)."""

@@ -337,31 +337,32 @@ class DronecanDecoder:
         """Payload of a reassembled transfer (toggles and transfer IDs already checked), or
         None with the reason counted."""
         crc0 = _OWN_UNPACK.get(dtid)
-        if crc0 is not None and len(frames) > 1:
+        if crc0 is not None:  # unpacked here; both types are multi-frame (>= 24 bytes)
             raw = b"".join([f[:-1] for f in frames])
             body = raw[2:]
-            if binascii.crc_hqx(body, crc0) != raw[0] | (raw[1] << 8):
+            if len(frames) > 1 and binascii.crc_hqx(body, crc0) != raw[0] | (raw[1] << 8):
                 self._reject("bad_crc", "dtid %d: transfer CRC mismatch", dtid)
                 return None
-            payload: Any = None
-        else:
-            t = transport.Transfer()
-            try:
-                t.from_frames([transport.Frame(message_id=cid, data=f) for f in frames])
-            except transport.TransferError as exc:
-                reason = "bad_crc" if "CRC" in str(exc) else "bad_transfer"
-                self._reject(reason, "dtid %d: %s", dtid, str(exc)[:120])
+            if not self._long_enough(dtid, frames):
                 return None
-            payload = t.payload
+            return _unpack_raw_imu(body) if dtid == RAW_IMU_DTID else body
+        t = transport.Transfer()
+        try:
+            t.from_frames([transport.Frame(message_id=cid, data=f) for f in frames])
+        except transport.TransferError as exc:
+            reason = "bad_crc" if "CRC" in str(exc) else "bad_transfer"
+            self._reject(reason, "dtid %d: %s", dtid, str(exc)[:120])
+            return None
         # The codec decodes a short payload without complaint (missing bits read as 0 or
-        # None), so length is checked here.
+        # None), so length is checked here too.
+        return t.payload if self._long_enough(dtid, frames) else None
+
+    def _long_enough(self, dtid: int, frames: list[bytes]) -> bool:
         n = _payload_len(frames)
         if n < _MIN_PAYLOAD[dtid]:
             self._reject("short_payload", "dtid %d: %d bytes < %d", dtid, n, _MIN_PAYLOAD[dtid])
-            return None
-        if payload is not None:
-            return payload
-        return _unpack_raw_imu(body) if dtid == RAW_IMU_DTID else body
+            return False
+        return True
 
     def _decode(self, src: int, dtid: int, recv_t_us: int, p: Any) -> Sample | None:
         if dtid == RAW_IMU_DTID:

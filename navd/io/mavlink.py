@@ -830,7 +830,6 @@ class MavlinkLink:
         self._udp_transport: asyncio.DatagramTransport | None = None
         self._rx_transport: asyncio.BaseTransport | None = None
         self._tx_transport: asyncio.WriteTransport | None = None
-        self._serial_fd: int | None = None
         self._decoder: MavlinkDecoder | None = None
         self._on_sample: SampleCallback | None = None
         self._clock_us: Callable[[], int] = monotonic_us
