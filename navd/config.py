@@ -200,6 +200,10 @@ class HeadingSection:
     reset_after: int = field(default=10, metadata={"kind": "int"})
     align_speed: float = _f(5.0, "mps")
     max_reverse_speed: float = _f(4.0, "mps")
+    # at rest with a gyro too poor to gyrocompass, position/velocity fixes must not move the
+    # heading (Estimator._heading_hold says why)
+    hold_static: bool = field(default=True, metadata={"kind": "bool"})
+    hold_max_speed: float = _f(0.3, "mps")
 
 
 @dataclass(frozen=True)

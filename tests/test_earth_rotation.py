@@ -144,3 +144,24 @@ def test_wrap_pi() -> None:
     assert rotation.wrap_pi(3 * math.pi) == pytest.approx(math.pi)
     assert rotation.wrap_pi(-math.pi) == pytest.approx(math.pi)
     assert rotation.wrap_pi(0.5) == pytest.approx(0.5)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-math.pi, math.pi), st.floats(-1.4, 1.4), st.floats(-math.pi, math.pi),
+       st.lists(st.floats(-1.0, 1.0, allow_subnormal=False), min_size=3, max_size=3))
+def test_zyx_yaw_error_is_azimuth_misalignment_plus_tan_pitch_tilt(
+        r: float, p: float, y: float, axis: list[float]) -> None:
+    """ZYX yaw is the nose's azimuth, so an attitude error phi (C_hat = Exp(-phi) C, NED)
+    moves it by -(phi_D + tan(pitch) * phi . h), h the horizontal unit vector along the nose:
+    the heading misalignment phi_D plus a tilt about h amplified by tan(pitch).  This is
+    why benchmarks/polarization.py scores heading as phi_D and prints ZYX yaw beside it."""
+    v = np.array(axis)
+    if np.linalg.norm(v) < 1e-3:
+        return
+    phi = 1e-6 * v / np.linalg.norm(v)
+    c = rotation.euler_to_mat(r, p, y)
+    c_hat = rotation.exp_so3(-phi) @ c
+    d_yaw = rotation.wrap_pi(rotation.mat_to_euler(c_hat)[2] - y)
+    h = np.array([math.cos(y), math.sin(y), 0.0])
+    predicted = -(phi[2] + math.tan(p) * float(phi @ h))
+    assert d_yaw == pytest.approx(predicted, rel=1e-3, abs=1e-11)

@@ -14,7 +14,7 @@ from firmware_sim.score import Score, initial_heading_config, score_run
 from navd.config import ConfigError, EstimatorConfig, load_config
 from navd.core.chi2 import chi2_quantile
 from navd.core.estimator import Estimator
-from navd.core.rotation import mat_to_euler
+from navd.core.rotation import log_vec, mat_to_euler
 from navd.types import GnssSample, ImuSample
 
 
@@ -326,3 +326,69 @@ def test_known_accel_bias_is_removed_before_levelling_and_seeds_the_estimate() -
 def test_known_bias_config_must_be_three_finite_numbers(bad: str) -> None:
     with pytest.raises(ConfigError, match="accel_bias_mg"):
         cfg(f"imu.accel_bias_mg={bad}")
+
+
+def test_initial_heading_covariance_holds_at_high_pitch() -> None:
+    """A configured heading is the nose's azimuth; pitched 80 deg, the levelling tilt error
+    (the accelerometer bias) moves the rotation about the vertical by tan(80) = 5.7 times
+    itself.  The initial covariance must say so: NEES of phi_D near 1 over many starts,
+    where a heading-only variance would give about 10."""
+    rng = np.random.default_rng(7)
+    nees = []
+    for seed in range(40):
+        run = generate(load_scenario("static", {
+            "duration_s": 4.0, "trajectory.pitch_deg": 80.0, "imu.grade": "mems_seed001_h"}),
+            seed=seed, progress=False)
+        tilt_sd = math.degrees(run.scenario.imu.accel_bias_sigma_mps2 / 9.80665)  # ~0.29 deg
+        yaw0 = math.degrees(float(run.truth_euler[0, 2])) + 0.5 * rng.standard_normal()
+        e = Estimator(cfg("init.heading_source=config", f"init.heading_deg={yaw0}",
+                          "init.heading_sd_deg=0.5", f"init.tilt_sd_deg={tilt_sd}"))
+        k = 0
+        for smp in run.samples():
+            e.push(smp)
+            if isinstance(smp, ImuSample):
+                k = smp.t_us // run.imu_dt_us
+            if e.initialized:
+                break
+        assert e.initialized
+        phi = -np.array(log_vec(e.mat_nb @ run.truth_mat_nb[k].T))
+        nees.append(phi[2] ** 2 / e.P[2, 2])
+        assert np.all(np.linalg.eigvalsh(e.P[:3, :3]) > 0.0)
+    assert 0.4 < float(np.mean(nees)) < 2.0
+
+
+def test_heading_is_held_at_rest_without_a_heading_source() -> None:
+    """A MEMS IMU at rest cannot observe its heading, so the GNSS fixes must not move it
+    nor shrink its variance.  Without the hold the EKF does both (it relinearises the
+    gyro-bias coupling about a heading its own corrections keep moving): the heading sigma
+    falls from 10 to ~3.5 deg while the error wanders up to 25 deg."""
+    def run_all(hold: bool) -> list[tuple[float, float, int]]:
+        out = []
+        for seed in range(1, 5):
+            run = generate(load_scenario("pol_static", {"duration_s": 1800.0,
+                                                       "trajectory.sway_deg": 0.0}),
+                           seed=seed, progress=False)
+            yaw0 = math.degrees(float(run.truth_euler[0, 2])) + 5.0
+            e = Estimator(cfg("init.heading_source=config", f"init.heading_deg={yaw0}",
+                              "init.heading_sd_deg=10", f"heading.hold_static={str(hold).lower()}",
+                              "imu.gyro_bias_sd_deg_per_h=12", "imu.accel_bias_sd_mg=5",
+                              "imu.accel_vrw_mps_per_sqrt_s=0.005"))
+            for smp in run.samples():
+                e.push(smp)
+            err = math.degrees(-log_vec(e.mat_nb @ run.truth_mat_nb[-1].T)[2])
+            out.append((err, math.degrees(math.sqrt(e.P[2, 2])), e.counters["heading_held"]))
+        return out
+
+    held = run_all(True)
+    for err, sd, n in held:
+        assert n > 1700 and sd > 8.0 and abs(err) < 3.0 * sd
+    free = run_all(False)
+    assert all(n == 0 and sd < 6.0 for _, sd, n in free)
+    assert np.mean([(err / sd) ** 2 for err, sd, _ in free]) > 3.0  # overconfident
+
+
+def test_heading_hold_is_off_for_a_gyro_that_can_gyrocompass() -> None:
+    assert Estimator(cfg("imu.gyro_bias_sd_deg_per_h=0.01"))._hold_enabled is False
+    assert Estimator(cfg("imu.gyro_bias_sd_deg_per_h=12"))._hold_enabled is True
+    assert Estimator(cfg("imu.gyro_bias_sd_deg_per_h=12",
+                         "heading.hold_static=false"))._hold_enabled is False

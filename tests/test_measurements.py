@@ -401,6 +401,35 @@ def test_gated_update_equals_textbook(m: int) -> None:
         assert nis2 == nis and np.array_equal(x3, x_got)
 
 
+@pytest.mark.parametrize("hold", [2, 9])
+def test_gated_update_with_a_held_state_is_the_schmidt_consider_update(hold: int) -> None:
+    """Zero gain for the held state, the Joseph form for the covariance (valid for any gain)."""
+    rng = np.random.default_rng(70 + hold)
+    for m in (1, 3, 4):
+        P = random_spd(rng, 15, SCALE)
+        H = rng.normal(size=(m, 15)) / SCALE[None, :] * rng.uniform(0, 1, size=(m, 15))
+        R = random_spd(rng, m, np.full(m, rng.uniform(0.1, 3.0)))
+        x = rng.normal(size=15) * SCALE * 0.1
+        S = H @ P @ H.T + R
+        z = rng.multivariate_normal(np.zeros(m), S)
+        K = P @ H.T @ np.linalg.inv(S)
+        K[hold, :] = 0.0
+        ikh = np.eye(15) - K @ H
+        x_want = x + K @ (z - H @ x)
+        P_want = ikh @ P @ ikh.T + K @ R @ K.T
+        x2, P2 = x.copy(), P.copy()
+        H4, z4, R4 = np.zeros((4, 15)), np.zeros(4), np.eye(4)
+        H4[:m], z4[:m], R4[:m, :m] = H, z, R
+        gated_update(x2, P2, H4, z4, R4, m, 0.0, np.zeros((4, 4)), np.zeros((4, 4)),
+                     np.zeros(15), np.zeros(4), hold)
+        d = 1.0 / SCALE
+        np.testing.assert_allclose(x2 * d, x_want * d, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(P2 * np.outer(d, d), P_want * np.outer(d, d), rtol=0,
+                                   atol=1e-9)
+        assert x2[hold] == x[hold] and P2[hold, hold] == P[hold, hold]
+        assert np.all(np.linalg.eigvalsh(P2) > 0.0)
+
+
 def test_gated_update_rejection_leaves_state_untouched() -> None:
     rng = np.random.default_rng(9)
     m = 4

@@ -27,7 +27,7 @@ import numpy.typing as npt
 from navd.config import EstimatorConfig
 from navd.core import state as st
 from navd.core.chi2 import chi2_quantile
-from navd.core.earth import geodetic_to_ecef, mat_ne_into, radii
+from navd.core.earth import OMEGA_IE, geodetic_to_ecef, mat_ne_into, radii
 from navd.core.output import attitude_outputs
 from navd.core.rotation import euler_to_mat_into, exp_into, mat_to_euler, mul3_into
 from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample
@@ -59,6 +59,8 @@ _NAV = 1
 
 _MAX_GNSS_LEAD_US = 1_000_000  # a fix may be stamped at most this far ahead of the IMU
 _REINIT_AFTER_JUMPS = 20  # consecutive >100 km disagreements that restart navigation
+_YAW = 2  # error-state index of phi_D
+_GYROCOMPASS_USELESS_RAD = 5.0 * math.pi / 180.0
 
 
 def _fixes_agree(a: GnssSample, b: GnssSample) -> bool:
@@ -150,6 +152,11 @@ class Estimator:
             or (c.filter.profile == "fixed_wing" and c.heading.crab_sd > 0.0))
         self._sd_beta = (c.heading.sideslip_sd if c.filter.profile == "ground"
                          else c.heading.crab_sd)
+        # Gyrocompassing at rest gives heading to gyro_bias_sd / (OMEGA_IE cos lat) at best;
+        # beyond ~5 deg (a gyro worse than ~1.3 deg/h) it is no heading source worth keeping.
+        self._hold_enabled = (c.heading.hold_static
+                              and c.imu.gyro_bias_sd > OMEGA_IE * _GYROCOMPASS_USELESS_RAD)
+        self._hold = -1
 
         self.counters: defaultdict[str, int] = defaultdict(int)
         self.heading_aligned = False
@@ -367,7 +374,20 @@ class Estimator:
         if not self._level_static:
             self.counters["level_not_static"] += 1
         P[0, 0] = P[1, 1] = tilt_sd**2
-        P[2, 2] = c.init.heading_sd**2 if self.heading_aligned else (math.pi / 2) ** 2
+        P[2, 2] = (math.pi / 2) ** 2
+        if self.heading_aligned:
+            # The heading given is a ZYX yaw, the azimuth of the nose; with the nose pitched
+            # by theta, a tilt error phi_h about the nose's horizontal direction h moves that
+            # azimuth by tan(theta) phi_h, so phi_D = -d_yaw - tan(theta) phi_h: its variance
+            # grows by tan^2 * tilt^2 and it correlates with the tilt (the Schur complement
+            # stays heading_sd^2, so P stays positive).  Near 90 deg pitch the nose has no
+            # azimuth: past a quarter turn of doubt, the heading is simply unknown.
+            tp = math.tan(pitch)
+            var_d = c.init.heading_sd**2 + (tp * tilt_sd) ** 2
+            if var_d < P[2, 2]:
+                P[2, 2] = var_d
+                P[0, 2] = P[2, 0] = -tp * tilt_sd**2 * math.cos(yaw)
+                P[1, 2] = P[2, 1] = -tp * tilt_sd**2 * math.sin(yaw)
         P[3, 3] = P[4, 4] = P[5, 5] = c.init.vel_sd**2
         self._set_pos_var(c.init.pos_sd)
         P[9, 9] = P[10, 10] = P[11, 11] = c.imu.gyro_bias_sd**2
@@ -477,6 +497,7 @@ class Estimator:
             return False
         self._absurd_in_row = 0
         self._last_gnss_t_us = g.t_us
+        self._hold = _YAW if self._heading_hold(g) else -1
 
         vel_scale = 1.0
         if self._mctls is not None:
@@ -488,11 +509,35 @@ class Estimator:
             self._swap_in(g.t_us, delayed)
             m = st.fill_position(self._buf, g.lat_rad, g.lon_rad, g.alt_m, h_sd, v_sd)
             self._swap_out(delayed)
-            self._apply(m, self._gate3, "pos")
+            self._apply(m, self._gate3, "pos", self._hold)
         if not has_vel_h:
             cnt["gnss_no_velocity"] += 1
         elif c.gnss.use_velocity and vel_scale > 0.0:
             self._velocity_and_course(g, s_sd / math.sqrt(vel_scale), delayed)
+        return True
+
+    def _heading_hold(self, g: GnssSample) -> bool:
+        """Whether this epoch's fixes must leave the heading (phi_D) alone.
+
+        At rest the heading is unobservable to a gyro that cannot gyrocompass: the fixes
+        see only east-gyro-bias + earth-rate x heading, as one number.  An EKF nevertheless
+        gains heading information there, because it relinearises the gyro-bias coupling
+        (-C_b^n) about a heading that its own corrections keep moving; over 40 minutes at
+        rest the heading sigma fell from 10 to 3.6 deg while the heading error grew from 5
+        to 25 deg.  Holding phi_D as a Schmidt consider state in these updates (no gain,
+        exact cross-covariances) keeps the filter honest; heading aids (course,
+        polarization) still correct it.
+        """
+        if not self._hold_enabled:
+            return False
+        if not (math.isfinite(g.vel_n) and math.isfinite(g.vel_e)):
+            return False
+        r = self.rate_b
+        if (math.hypot(g.vel_n, g.vel_e) > self.cfg.heading.hold_max_speed
+                or math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+                > self.cfg.init.static_rate_tol):
+            return False
+        self.counters["heading_held"] += 1
         return True
 
     def _swap_in(self, t_us: int, delayed: bool) -> None:
@@ -524,8 +569,8 @@ class Estimator:
             return 0.0
         return w
 
-    def _apply(self, m: int, gate: float, name: str) -> float:
-        nis = st.update(self._buf, m, gate if self._gating else 0.0)
+    def _apply(self, m: int, gate: float, name: str, hold: int = -1) -> float:
+        nis = st.update(self._buf, m, gate if self._gating else 0.0, hold)
         if nis >= 0.0:
             st.inject(self._buf)
             self.counters[name + "_accepted"] += 1
@@ -588,7 +633,7 @@ class Estimator:
         m = self._fill_velocity(g, s_sd, delayed)
         if not use_course:
             self._swap_out(delayed)
-            self._apply(m, self._gate3, "vel")
+            self._apply(m, self._gate3, "vel", self._hold)
             self._check_observed_heading()
             return
         # lever-arm-free GNSS velocity for the course, v_gnss - C (w x l); the velocity
@@ -618,13 +663,13 @@ class Estimator:
             # the joint block failed: fall back to velocity alone
             m = self._fill_velocity(g, s_sd, delayed)
             self._swap_out(delayed)
-            self._apply(m, self._gate3, "vel")
+            self._apply(m, self._gate3, "vel", self._hold)
             return
         cnt["course_rejected"] += 1
         self._course_rejects += 1
         m = self._fill_velocity(g, s_sd, delayed)
         self._swap_out(delayed)
-        self._apply(m, self._gate3, "vel")
+        self._apply(m, self._gate3, "vel", self._hold)
         if self._course_rejects >= self.cfg.heading.reset_after:
             # persistently inconsistent: the yaw is wrong beyond the linear model; reset it
             self._align_yaw_to_course(vn_c, ve_c, s_sd)

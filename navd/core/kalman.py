@@ -69,8 +69,12 @@ def propagate_cov(P: Arr, F: Arr, q: Arr, T: float, A: Arr, B: Arr) -> None:
 
 @jit
 def gated_update(x: Arr, P: Arr, H: Arr, z: Arr, R: Arr, m: int, gate: float,
-                 S: Arr, L: Arr, ph: Arr, w: Arr) -> float:
+                 S: Arr, L: Arr, ph: Arr, w: Arr, hold: int = -1) -> float:
     """Gate and apply a measurement block of size m in place.
+
+    ``hold`` (an index, -1 for none) makes that state a Schmidt "consider" state: its
+    estimate and variance stay as they are (zero gain) while its correlations with the
+    others update exactly, so P remains the true covariance of the (suboptimal) estimate.
 
     Args:
         x: error state (15,), updated.
@@ -80,6 +84,7 @@ def gated_update(x: Arr, P: Arr, H: Arr, z: Arr, R: Arr, m: int, gate: float,
         R: (4, 4) measurement covariance, top-left m x m used.
         gate: chi-square threshold for m degrees of freedom (<= 0 disables the gate).
         S, L: (4, 4) scratch.  ph: (15,) scratch.  w: (4,) scratch.
+        hold: index of a consider state, or -1.
     Returns:
         The normalised innovation squared; negative (-NIS) when the gate rejected it, and
         -inf when S was not positive definite (nothing applied).
@@ -143,13 +148,19 @@ def gated_update(x: Arr, P: Arr, H: Arr, z: Arr, R: Arr, m: int, gate: float,
             for k in range(a):
                 v -= L[a, k] * H[k, j]
             H[a, j] = v / L[a, a]
+    # With K = U^T L^-1 and a zero gain row for the held state h, the Joseph form reduces
+    # to the usual P -= U^T U everywhere except P[h, h], which keeps its value.
     for i in range(n):
+        if i == hold:
+            continue
         s = 0.0
         for a in range(m):
             s += H[a, i] * w[a]
         x[i] += s
     for i in range(n):
         for j in range(i, n):
+            if i == hold and j == hold:
+                continue
             s = 0.0
             for a in range(m):
                 s += H[a, i] * H[a, j]
