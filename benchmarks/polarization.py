@@ -209,12 +209,13 @@ def _score(run: SimRun, est: Estimator, wire: bool) -> dict[str, Any]:
             continue
         k = (s.t_us - t0) // dt_truth
         c_true = run.truth_mat_nb[k]
-        de = np.array(mat_to_euler(est.mat_nb)) - run.truth_euler[k]
+        eul = np.array(mat_to_euler(est.mat_nb))
+        de = eul - run.truth_euler[k]
         de = (de + math.pi) % (2 * math.pi) - math.pi
         phi = -np.array(log_so3(est.mat_nb @ c_true.T))
         sd = est.solution().att_sd_rad
         rows.append((s.t_us * 1e-6, *(de * R2D), *(phi * R2D), *(np.array(sd) * R2D),
-                     math.sqrt(max(float(est.P[2, 2]), 0.0)) * R2D))
+                     math.sqrt(max(float(est.P[2, 2]), 0.0)) * R2D, *(eul * R2D)))
     a = np.array(rows)
     t = a[:, 0]
     half = t >= 0.5 * t[-1]
@@ -238,6 +239,8 @@ def _score(run: SimRun, est: Estimator, wire: bool) -> dict[str, Any]:
         "final_phiD_sd_deg": float(a[-1, 10]),
         "heading_conv_s": conv, "wire_fail": wire_fail,
         "hist": {"t_s": t[hist_idx].tolist(), "err_deg": e[hist_idx].round(5).tolist(),
+                 "phiD_deg": phi[hist_idx, 2].round(5).tolist(),
+                 "euler_deg": a[hist_idx, 11:14].round(4).tolist(),
                  "sd_deg": a[hist_idx, 7:10].round(5).tolist()},
     }
 
@@ -363,35 +366,67 @@ def plot(records: list[dict[str, Any]], path: str) -> None:
     import matplotlib.pyplot as plt
 
     recs = [r for r in records if r["variant"] == "static"]
-    fig, axes = plt.subplots(4, 3, figsize=(15, 13), sharex=True)
-    names = ("roll error", "pitch error", "heading error")
+    fig, axes = plt.subplots(4, 4, figsize=(19, 13), sharex=True)
+    names = ("roll error", "pitch error", "ZYX yaw error", "heading error (phi_D)")
     for row, (table, pol_on) in enumerate((("S1", True), ("S2", True), ("S1", False),
                                            ("S2", False))):
         for r in sorted((r for r in recs if r["table"] == table and r["pol"] == pol_on),
                         key=lambda r: r["tilt_deg"]):
             t = np.array(r["hist"]["t_s"]) / 60.0
-            e = np.array(r["hist"]["err_deg"])
-            for col in range(3):
+            e = np.column_stack([np.array(r["hist"]["err_deg"]),
+                                 np.array(r["hist"]["phiD_deg"])])
+            for col in range(4):
                 axes[row, col].plot(t, e[:, col], lw=0.8, label=f"{r['tilt_deg']} deg")
-        for col in range(3):
+        for col in range(4):
             ax = axes[row, col]
             ax.set_title(f"Table {table} ({'pitch' if table == 'S1' else 'roll'} tilt), "
                          f"POL {'on' if pol_on else 'off'}: {names[col]}", fontsize=9)
             ax.set_ylabel("deg")
             ax.grid(alpha=0.3)
-            if col == 2 and pol_on:
+            if col >= 2 and pol_on:
                 ax.set_ylim(-1.0, 1.0)
-            elif col == 2:
+            elif col >= 2:
                 ax.set_ylim(-15.0, 15.0)
             else:
                 ax.set_ylim(-2.0, 2.0)
         axes[row, 0].legend(fontsize=7, ncol=2)
-    for col in range(3):
+    for col in range(4):
         axes[-1, col].set_xlabel("minutes after 18:12 local time")
     fig.suptitle("INS/POL, static tilted vehicle (seed 000 Figs. S3/S5 analogue; errors "
                  "computed - true; ZYX Euler undefined at 90 deg pitch)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+    plt.close(fig)
+    _plot_angles(recs, path.replace(".png", "_angles.png"))
+
+
+def _plot_angles(recs: list[dict[str, Any]], path: str) -> None:
+    """Estimated roll, pitch and yaw with POL on (the seed's Figs. S2/S4 analogue)."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, 3, figsize=(15, 7), sharex=True)
+    for row, table in enumerate(("S1", "S2")):
+        for r in sorted((r for r in recs if r["table"] == table and r["pol"]),
+                        key=lambda r: r["tilt_deg"]):
+            t = np.array(r["hist"]["t_s"]) / 60.0
+            e = np.array(r["hist"]["euler_deg"])
+            e[:, 2] = np.mod(e[:, 2], 360.0)
+            for col in range(3):
+                axes[row, col].plot(t, e[:, col], lw=0.8, label=f"{r['tilt_deg']} deg")
+        for col, name in enumerate(("roll", "pitch", "yaw (0-360)")):
+            ax = axes[row, col]
+            ax.set_title(f"Table {table} ({'pitch' if table == 'S1' else 'roll'} tilt), "
+                         f"POL on: estimated {name}", fontsize=9)
+            ax.set_ylabel("deg")
+            ax.grid(alpha=0.3)
+        axes[row, 0].legend(fontsize=7, ncol=2)
+    for col in range(3):
+        axes[-1, col].set_xlabel("minutes after 18:12 local time")
+    fig.suptitle("INS/POL, static tilted vehicle: estimated attitude (seed 000 Figs. S2/S4 "
+                 "analogue)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def main(argv: list[str] | None = None) -> int:

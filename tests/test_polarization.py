@@ -260,16 +260,23 @@ def test_sim_mounting_and_dark_sky() -> None:
     assert np.allclose(np.vectorize(_wrap_half_pi)(a0 - a30 - 30.0 * D2R), 0.0, atol=1e-9)
 
 
-@pytest.mark.parametrize("pol_on", [True, False])
-def test_static_heading_converges_with_pol_only(pol_on: bool) -> None:
-    """Static tilted vehicle, heading 5 deg off (sigma 10): POL fixes it, nothing else does."""
-    sc = load_scenario("pol_static", {"duration_s": 180.0, "trajectory.pitch_deg": 30.0,
-                                      "trajectory.yaw_deg": 233.87})
-    run = generate(sc, seed=2)
+def _static_tilted(duration_s: float, pitch_deg: float, yaw_deg: float, seed: int,
+                   pol_on: bool) -> tuple[Any, Estimator]:
+    """A pol_static run and an estimator started with the heading 5 deg off (sigma 10)."""
+    sc = load_scenario("pol_static", {"duration_s": duration_s,
+                                      "trajectory.pitch_deg": pitch_deg,
+                                      "trajectory.yaw_deg": yaw_deg})
+    run = generate(sc, seed=seed)
     yaw0 = math.degrees(float(run.truth_euler[0, 2])) + 5.0
     cfg = EstimatorConfig.from_dict(load_config(None, [
         "init.heading_source=config", f"init.heading_deg={yaw0}", "init.heading_sd_deg=10"]))
-    est = Estimator(cfg, pol=PolarizationAiding.from_config(MOUNT0) if pol_on else None)
+    return run, Estimator(cfg, pol=PolarizationAiding.from_config(MOUNT0) if pol_on else None)
+
+
+@pytest.mark.parametrize("pol_on", [True, False])
+def test_static_heading_converges_with_pol_only(pol_on: bool) -> None:
+    """Static tilted vehicle, heading 5 deg off (sigma 10): POL fixes it, nothing else does."""
+    run, est = _static_tilted(180.0, 30.0, 233.87, 2, pol_on)
     errs = []
     for s in run.samples():
         est.push(s)
@@ -292,13 +299,7 @@ def test_pitched_75_deg_heading_misalignment_is_observed_and_consistent() -> Non
     within 4 of the filter's own sigmas; without POL it does not."""
     errs: dict[bool, float] = {}
     for pol_on in (True, False):
-        sc = load_scenario("pol_static", {"duration_s": 600.0, "trajectory.pitch_deg": 75.0,
-                                          "trajectory.yaw_deg": 278.87})
-        run = generate(sc, seed=3)
-        yaw0 = math.degrees(float(run.truth_euler[0, 2])) + 5.0
-        cfg = EstimatorConfig.from_dict(load_config(None, [
-            "init.heading_source=config", f"init.heading_deg={yaw0}", "init.heading_sd_deg=10"]))
-        est = Estimator(cfg, pol=PolarizationAiding.from_config(MOUNT0) if pol_on else None)
+        run, est = _static_tilted(600.0, 75.0, 278.87, 3, pol_on)
         k = 0
         for s in run.samples():
             est.push(s)
