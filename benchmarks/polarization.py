@@ -390,14 +390,20 @@ def plot(records: list[dict[str, Any]], path: str) -> None:
             else:
                 ax.set_ylim(-2.0, 2.0)
         axes[row, 0].legend(fontsize=7, ncol=2)
-    for col in range(4):
-        axes[-1, col].set_xlabel("minutes after 18:12 local time")
-    fig.suptitle("INS/POL, static tilted vehicle (seed 000 Figs. S3/S5 analogue; errors "
-                 "computed - true; ZYX Euler undefined at 90 deg pitch)")
+    _finish(fig, axes, "INS/POL, static tilted vehicle (seed 000 Figs. S3/S5 analogue; errors "
+            "computed - true; ZYX Euler undefined at 90 deg pitch)", path)
+    _plot_angles(recs, path.replace(".png", "_angles.png"))
+
+
+def _finish(fig: Any, axes: Any, title: str, path: str) -> None:
+    import matplotlib.pyplot as plt
+
+    for ax in axes[-1]:
+        ax.set_xlabel("minutes after 18:12 local time")
+    fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-    _plot_angles(recs, path.replace(".png", "_angles.png"))
 
 
 def _plot_angles(recs: list[dict[str, Any]], path: str) -> None:
@@ -420,13 +426,8 @@ def _plot_angles(recs: list[dict[str, Any]], path: str) -> None:
             ax.set_ylabel("deg")
             ax.grid(alpha=0.3)
         axes[row, 0].legend(fontsize=7, ncol=2)
-    for col in range(3):
-        axes[-1, col].set_xlabel("minutes after 18:12 local time")
-    fig.suptitle("INS/POL, static tilted vehicle: estimated attitude (seed 000 Figs. S2/S4 "
-                 "analogue)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _finish(fig, axes, "INS/POL, static tilted vehicle: estimated attitude (seed 000 Figs. "
+            "S2/S4 analogue)", path)
 
 
 def main(argv: list[str] | None = None) -> int:
