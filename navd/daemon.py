@@ -71,7 +71,7 @@ _log = logging.getLogger("navd")
 # that grows is a refusal of input and gets a (rate-limited) warning.
 _INFO_COUNTERS = frozenset({"imu", "gnss", "nav_start", "heading_aligned_from_course",
                             "heading_aligned_by_observability", "gnss_delayed", "pol_delayed",
-                            "gnss_no_velocity", "dov_off_grid"})
+                            "gnss_no_velocity", "dov_off_grid", "heading_held"})
 
 
 def _is_refusal(counter: str) -> bool:
@@ -400,6 +400,8 @@ class Daemon:
         lat_txt = (f"latency p50/p99 {lat['p50_us'] / 1e3:.2f}/{lat['p99_us'] / 1e3:.2f} ms"
                    if "p99_us" in lat else "no output yet")
         aligned = "heading aligned" if self.est.heading_aligned else "heading not aligned"
+        if self.est.heading_held:
+            aligned += " (held at rest)"
         return f"{self.state()}, {aligned}", lat_txt
 
     def status_line(self) -> str:

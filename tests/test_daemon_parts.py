@@ -290,3 +290,19 @@ def test_polarization_readings_over_dronecan_into_the_estimator() -> None:
     assert all(abs(a.aop_rad - b.aop_rad) < 1e-6 for a, b in zip(got, ref, strict=True))
     assert dec.counters["pol_ok"] == len(ref)
     assert est.counters["pol_accepted"] > 0.9 * len(ref)
+
+
+def test_a_clean_static_run_raises_no_refusal_warnings() -> None:
+    """Counters of normal work (the heading hold at rest among them) must not be logged as
+    refused input; a vehicle parked for a minute is not a fault."""
+    from firmware_sim import generate, load_scenario
+    from navd.config import EstimatorConfig
+    from navd.core.estimator import Estimator
+    from navd.daemon import _is_refusal
+
+    run = generate(load_scenario("static", {"duration_s": 60.0}), seed=1, progress=False)
+    est = Estimator(EstimatorConfig.from_dict(load_config(None, [])))
+    for s in run.samples():
+        est.push(s)
+    assert est.counters["heading_held"] > 50 and est.heading_held
+    assert {k: v for k, v in est.counters.items() if _is_refusal(k)} == {}

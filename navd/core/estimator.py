@@ -167,6 +167,7 @@ class Estimator:
     # ------------------------------------------------------------------ state
     def _reset_state(self) -> None:
         self._stage = _WAIT
+        self._hold = -1
         self.t_us = -1
         self._last_gnss_t_us = -1
         self._level_sum[:] = 0.0
@@ -719,6 +720,11 @@ class Estimator:
             heading_aligned=self.heading_aligned,
             rate_b=(float(w[0]), float(w[1]), float(w[2])))
 
+    @property
+    def heading_held(self) -> bool:
+        """Whether the last GNSS epoch left the heading alone (at rest, MEMS gyro)."""
+        return self._hold >= 0
+
     def status(self) -> dict[str, object]:
         """Counters and aiding status for the status topic and logs."""
         return {
@@ -728,6 +734,8 @@ class Estimator:
             "robust": self.cfg.filter.robust,
             "profile": self.cfg.filter.profile,
             "course_update": self.course_status,
+            # at rest with a MEMS gyro: GNSS fixes leave the heading alone (its sigma grows)
+            "heading_held": self.heading_held,
             # sensor-time age of the last GNSS fix used; None before the first (absent GNSS
             # shows as a growing age: the INS is coasting)
             "gnss_age_s": ((self.t_us - self._last_gnss_t_us) * 1e-6
