@@ -46,7 +46,7 @@ import os
 import socket
 import termios
 import tty
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, Literal, cast
 
@@ -718,8 +718,8 @@ def parse_mavlink_url(url: str) -> LinkAddress:
     raise ValueError(f"unsupported MAVLink address {url!r}")
 
 
-class MavlinkUdpProtocol(asyncio.DatagramProtocol):
-    """Decodes each datagram and hands samples to ``on_sample`` on the event loop."""
+class _Delivering:
+    """What both MAVLink protocols share: a decoder, a sample callback and a clock."""
 
     def __init__(
         self,
@@ -730,9 +730,24 @@ class MavlinkUdpProtocol(asyncio.DatagramProtocol):
         self.decoder = decoder
         self.on_sample = on_sample
         self.clock_us = clock_us
+        self.counters = decoder.counters if decoder is not None else Counters()
+        self._init_link()
+
+    def _init_link(self) -> None:
+        """The transport-specific state."""
+
+    def _deliver(self, samples: Iterable[Sample]) -> None:
+        if self.on_sample is not None:
+            for s in samples:
+                self.on_sample(s)
+
+
+class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
+    """Decodes each datagram and hands samples to ``on_sample`` on the event loop."""
+
+    def _init_link(self) -> None:
         self.transport: asyncio.DatagramTransport | None = None
         self.last_peer: tuple[Any, ...] | None = None
-        self.counters = decoder.counters if decoder is not None else Counters()
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         # The selector loop's datagram transport does not subclass asyncio.DatagramTransport
@@ -741,11 +756,8 @@ class MavlinkUdpProtocol(asyncio.DatagramProtocol):
 
     def datagram_received(self, data: bytes, addr: tuple[Any, ...]) -> None:
         self.last_peer = addr
-        if self.decoder is None:
-            return
-        for s in self.decoder.feed_datagram(data, self.clock_us()):
-            if self.on_sample is not None:
-                self.on_sample(s)
+        if self.decoder is not None:
+            self._deliver(self.decoder.feed_datagram(data, self.clock_us()))
 
     def error_received(self, exc: Exception) -> None:
         # ICMP port-unreachable on a connected udpout socket lands here; the link lives on.
@@ -753,27 +765,15 @@ class MavlinkUdpProtocol(asyncio.DatagramProtocol):
         _log.debug("MAVLink UDP error: %s", exc)
 
 
-class MavlinkStreamProtocol(asyncio.Protocol):
+class MavlinkStreamProtocol(_Delivering, asyncio.Protocol):
     """Byte-stream twin of :class:`MavlinkUdpProtocol` for TCP and serial."""
 
-    def __init__(
-        self,
-        decoder: MavlinkDecoder | None,
-        on_sample: SampleCallback | None,
-        clock_us: Callable[[], int] = monotonic_us,
-    ) -> None:
-        self.decoder = decoder
-        self.on_sample = on_sample
-        self.clock_us = clock_us
-        self.counters = decoder.counters if decoder is not None else Counters()
+    def _init_link(self) -> None:
         self.closed: asyncio.Future[None] = asyncio.get_running_loop().create_future()
 
     def data_received(self, data: bytes) -> None:
-        if self.decoder is None:
-            return
-        for s in self.decoder.feed(data, self.clock_us()):
-            if self.on_sample is not None:
-                self.on_sample(s)
+        if self.decoder is not None:
+            self._deliver(self.decoder.feed(data, self.clock_us()))
 
     def eof_received(self) -> bool | None:
         return None
