@@ -55,6 +55,7 @@ import numpy as np
 from firmware_sim.polarization import PolMavlinkEncoder
 from firmware_sim.run import SimRun, generate
 from firmware_sim.scenario import load_scenario
+from firmware_sim.score import matched_imu_config
 from navd import bias_store
 from navd.bias_store import BiasStoreSection
 from navd.config import EstimatorConfig, load_config
@@ -82,15 +83,6 @@ def _case_overrides(table: str, tilt: float, variant: str) -> dict[str, Any]:
     if variant == "static":
         return {"trajectory.yaw_deg": yaw, f"trajectory.{axis}_deg": float(tilt)}
     return {"trajectory.yaw0_deg": yaw, f"polarization.mount_{axis}_deg": float(tilt)}
-
-
-def _imu_overrides(sc: Any) -> list[str]:
-    """The filter's IMU model set to the simulated IMU's (a filter tuned to its sensor)."""
-    i = sc.imu
-    return [f"imu.gyro_bias_sd_deg_per_h={i.gyro_bias_sigma_rps * R2D * 3600.0}",
-            f"imu.accel_bias_sd_mg={i.accel_bias_sigma_mps2 / G_MG}",
-            f"imu.gyro_arw_deg_per_sqrt_h={i.arw_rad_per_sqrt_s * R2D * 60.0}",
-            f"imu.accel_vrw_mps_per_sqrt_s={i.vrw_mps_per_sqrt_s}"]
 
 
 def _scenario_overrides(case: dict[str, Any]) -> dict[str, Any]:
@@ -126,7 +118,7 @@ def _learn(case: dict[str, Any]) -> tuple[dict[str, Any], str]:
     config tables the static run starts from."""
     sc = load_scenario("pol_moving", {"duration_s": case["learn_s"], **_scenario_overrides(case)})
     run = generate(sc, seed=case["seed"])
-    tables = load_config(None, _imu_overrides(sc))
+    tables = load_config(None, matched_imu_config(sc.imu))
     est = Estimator(EstimatorConfig.from_dict(tables))
     for smp in run.samples():
         if not isinstance(smp, PolSample):
@@ -159,7 +151,7 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
                  f"init.heading_sd_deg={HEADING_SD_DEG}"]
     if variant == "moving":
         overrides.append("filter.mode=traditional")
-    tables = load_config(None, _imu_overrides(sc) + overrides)
+    tables = load_config(None, matched_imu_config(sc.imu) + overrides)
     learned = ""
     if case.get("learn_s"):
         base, learned = learn_biases(case)

@@ -28,26 +28,22 @@ import numpy as np
 
 from firmware_sim.run import generate
 from firmware_sim.scenario import load_scenario
+from firmware_sim.score import matched_imu_config
 from navd.config import EstimatorConfig, load_config
 from navd.core.estimator import Estimator
 from navd.core.rotation import log_vec
 from navd.types import PolSample
 
 R2D = 180.0 / math.pi
-G_MG = 9.80665e-3
 
 
 def run_case(case: dict[str, Any]) -> dict[str, Any]:
     sc = load_scenario("pol_static", {"duration_s": case["duration_s"]})
     run = generate(sc, seed=case["seed"])
-    i = sc.imu
     yaw0 = float(run.truth_euler[0, 2]) * R2D + 5.0
     cfg = EstimatorConfig.from_dict(load_config(None, [
-        f"imu.gyro_bias_sd_deg_per_h={i.gyro_bias_sigma_rps * R2D * 3600.0}",
-        f"imu.accel_bias_sd_mg={i.accel_bias_sigma_mps2 / G_MG}",
-        f"imu.gyro_arw_deg_per_sqrt_h={i.arw_rad_per_sqrt_s * R2D * 60.0}",
-        f"imu.accel_vrw_mps_per_sqrt_s={i.vrw_mps_per_sqrt_s}",
-        "init.heading_source=config", f"init.heading_deg={yaw0}", "init.heading_sd_deg=10",
+        *matched_imu_config(sc.imu), "init.heading_source=config", f"init.heading_deg={yaw0}",
+        "init.heading_sd_deg=10",
         f"heading.hold_static={'true' if case['hold'] else 'false'}"]))
     est = Estimator(cfg)
     for s in run.samples():

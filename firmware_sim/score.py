@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from firmware_sim.run import SimRun
+from firmware_sim.scenario import ImuSpec
 from navd.config import EstimatorConfig
 from navd.core.earth import radii
 from navd.core.estimator import Estimator
@@ -69,6 +70,15 @@ def initial_heading_config(run: SimRun, yaw_error_deg: float) -> list[str]:
     yaw0 = float(run.truth_euler[0, 2]) * R2D + yaw_error_deg
     return ["init.heading_source=config", f"init.heading_deg={yaw0}",
             f"init.heading_sd_deg={max(abs(yaw_error_deg), 1.0)}"]
+
+
+def matched_imu_config(imu: ImuSpec) -> list[str]:
+    """Config overrides that set the filter's IMU model to the simulated IMU's (a filter
+    tuned to its sensor)."""
+    return [f"imu.gyro_bias_sd_deg_per_h={imu.gyro_bias_sigma_rps * R2D * 3600.0}",
+            f"imu.accel_bias_sd_mg={imu.accel_bias_sigma_mps2 / 9.80665e-3}",
+            f"imu.gyro_arw_deg_per_sqrt_h={imu.arw_rad_per_sqrt_s * R2D * 60.0}",
+            f"imu.accel_vrw_mps_per_sqrt_s={imu.vrw_mps_per_sqrt_s}"]
 
 
 def score_run(run: SimRun, cfg: EstimatorConfig, rate_hz: float = 10.0,

@@ -61,6 +61,15 @@ class StreamStats:
     max_late_s: float = 0.0  # how far behind its deadline the worst send was
 
 
+def _send_frames(bus: Any, frames: list[can.Message], is_imu: bool, st: StreamStats) -> None:
+    """One sample's CAN frames onto the bus, counted."""
+    for f in frames:
+        bus.send(f)
+    st.packets += len(frames)
+    st.imu += is_imu
+    st.gnss += not is_imu
+
+
 def timed_samples(run: SimRun) -> Iterator[tuple[int, ImuSample | GnssSample | PolSample]]:
     """(send time µs on the sensor clock, sample), non-decreasing in send time.
 
@@ -176,11 +185,7 @@ def stream_dronecan(events: Iterator[tuple[int, list[can.Message], bool]], bus: 
             time.sleep(wait)
         else:
             st.max_late_s = max(st.max_late_s, -wait)
-        for f in frames:
-            bus.send(f)
-        st.packets += len(frames)
-        st.imu += is_imu
-        st.gnss += not is_imu
+        _send_frames(bus, frames, is_imu, st)
     st.wall_s = time.monotonic() - t_start
     return st
 
@@ -200,11 +205,7 @@ async def stream_dronecan_async(events: Iterator[tuple[int, list[can.Message], b
             st.max_late_s = max(st.max_late_s, -wait)
             if n % 32 == 0:
                 await asyncio.sleep(0)  # behind schedule: still let the receiver run
-        for f in frames:
-            bus.send(f)
-        st.packets += len(frames)
-        st.imu += is_imu
-        st.gnss += not is_imu
+        _send_frames(bus, frames, is_imu, st)
     st.wall_s = time.monotonic() - t_start
     return st
 

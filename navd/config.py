@@ -47,7 +47,12 @@ def load_config(path: str | Path | None, overrides: list[str] | None = None) -> 
             raise ConfigError(f"cannot read config {path}: {exc}") from exc
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"config {path} is not valid TOML: {exc}") from exc
-    for ov in overrides or []:
+    return apply_overrides(data, overrides or [])
+
+
+def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
+    """Set each ``section.key=value`` in the TOML tables ``data`` (in place); returns it."""
+    for ov in overrides:
         parts, value = parse_override(ov)
         node = data
         for p in parts[:-1]:

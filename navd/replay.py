@@ -14,7 +14,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from navd.config import ConfigError, load_config, parse_override
+from navd.config import ConfigError, apply_overrides, load_config
 from navd.core.estimator import Estimator
 from navd.io.replay import (
     ReadReport,
@@ -165,15 +165,7 @@ def _replay_recording(a: argparse.Namespace) -> int:
         if a.config:
             tables = load_config(a.config, a.set)
         else:  # the daemon's own configuration, --set applied on top
-            tables = copy.deepcopy(rec.config)
-            for ov in a.set:
-                parts, value = parse_override(ov)
-                node = tables
-                for p in parts[:-1]:
-                    node = node.setdefault(p, {})
-                    if not isinstance(node, dict):
-                        raise ConfigError(f"override {ov!r}: {p} is not a table")
-                node[parts[-1]] = value
+            tables = apply_overrides(copy.deepcopy(rec.config), a.set)
         # the daemon's construction (DOV model, polarization aid), so the replay matches
         from navd.daemon import make_estimator
 

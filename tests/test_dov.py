@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 import pytest
+from alloc_util import measure_steps
 
 from navd.config import ConfigError, load_config
 from navd.core.aiding.dov import (
@@ -370,31 +371,13 @@ def test_estimator_flags_off_grid_and_uses_the_grid_on_it() -> None:
 
 def test_gnss_updates_with_a_grid_do_not_allocate() -> None:
     from firmware_sim import generate, load_scenario
-    from navd.types import ImuSample
 
     run = generate(load_scenario("car480", {"duration_s": 150.0}), seed=2)
     est = Estimator(dov_field=_car_grid(run.truth_pos, 0.01))
-    samples = list(run.samples())
-    n = 0
-    it = iter(samples)
-    for smp in it:
-        est.push(smp)
-        n += isinstance(smp, ImuSample)
-        if n >= 20000:
-            break
-    tracemalloc.start()
-    try:
-        base = tracemalloc.get_traced_memory()[0]
-        tracemalloc.reset_peak()
-        for smp in it:
-            est.push(smp)
-        cur, peak = tracemalloc.get_traced_memory()
-        snap = tracemalloc.take_snapshot()
-    finally:
-        tracemalloc.stop()
+    a = measure_steps(est, list(run.samples()))
     assert est.counters["gnss"] > 100 and est.dov_on_grid
-    numpy_domain = snap.filter_traces([tracemalloc.DomainFilter(True,
-                                                                np.lib.tracemalloc_domain)])
+    numpy_domain = a.snapshot.filter_traces([tracemalloc.DomainFilter(
+        True, np.lib.tracemalloc_domain)])
     assert sum(s.size for s in numpy_domain.statistics("filename")) == 0
-    assert peak - base < 4096
-    assert cur - base < 1024
+    assert a.peak < 4096
+    assert a.grew < 1024

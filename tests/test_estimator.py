@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import math
-import tracemalloc
 from functools import cache
 
 import numpy as np
 import pytest
+from alloc_util import measure_steps
 
 from firmware_sim import SimRun, generate, load_scenario
 from firmware_sim.score import Score, initial_heading_config, score_run
@@ -112,31 +112,11 @@ def test_velocity_jump_bursts_are_rejected_and_counted() -> None:
 
 def test_steady_state_steps_do_not_allocate() -> None:
     run = car(1)
-    samples = list(run.samples())
     e = Estimator(cfg("init.heading_source=config"))
-    it = iter(samples)
-    n = 0
-    for smp in it:
-        e.push(smp)
-        n += isinstance(smp, ImuSample)
-        if n >= 20000:
-            break
-    tracemalloc.start()
-    try:
-        base = tracemalloc.get_traced_memory()[0]
-        tracemalloc.reset_peak()
-        n = 0
-        for smp in it:
-            e.push(smp)
-            n += isinstance(smp, ImuSample)
-            if n >= 10000:
-                break
-        cur, peak = tracemalloc.get_traced_memory()
-    finally:
-        tracemalloc.stop()
-    assert n == 10000
-    assert peak - base < 1024
-    assert cur - base < 256
+    a = measure_steps(e, list(run.samples()), max_imu=10000)
+    assert a.imu == 10000
+    assert a.peak < 1024
+    assert a.grew < 256
 
 
 def _finite(e: Estimator) -> bool:
