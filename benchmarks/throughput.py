@@ -13,9 +13,9 @@ import argparse
 import json
 import platform
 import time
-import tracemalloc
 
 from firmware_sim import generate, load_scenario
+from firmware_sim.alloc import measure_steps
 from navd.config import EstimatorConfig, load_config
 from navd.core.estimator import Estimator
 from navd.types import ImuSample
@@ -51,26 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     rate = n_imu / best
 
     # allocation over 10,000 steady-state IMU steps (after 200 s of navigation)
-    e = Estimator(cfg)
-    it = iter(samples)
-    warm = 0
-    for s in it:
-        e.push(s)
-        warm += isinstance(s, ImuSample)
-        if warm >= 20000:
-            break
-    tracemalloc.start()
-    base = tracemalloc.get_traced_memory()[0]
-    tracemalloc.reset_peak()
-    steps = 0
-    for s in it:
-        e.push(s)
-        steps += isinstance(s, ImuSample)
-        if steps >= 10000:
-            break
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
-    growth = peak - base
+    growth = measure_steps(Estimator(cfg), samples, max_imu=10000).peak
 
     print(f"{'metric':<40}{'value':>16}{'target':>14}")
     print(f"{'IMU samples/s (completed, ' + a.robust + ')':<40}{rate:>16,.0f}{'>= 50,000':>14}")

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 import pytest
-from alloc_util import measure_steps
 
+from firmware_sim.alloc import measure_steps
 from navd.config import ConfigError, load_config
 from navd.core.aiding.dov import (
     ARCSEC,

@@ -7,9 +7,9 @@ from functools import cache
 
 import numpy as np
 import pytest
-from alloc_util import measure_steps
 
 from firmware_sim import SimRun, generate, load_scenario
+from firmware_sim.alloc import measure_steps
 from firmware_sim.score import Score, initial_heading_config, score_run
 from navd.config import ConfigError, EstimatorConfig, load_config
 from navd.core.chi2 import chi2_quantile

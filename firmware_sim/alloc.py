@@ -1,4 +1,5 @@
-"""Allocation measurement of steady-state estimator steps (shared by the allocation tests)."""
+"""Allocation measurement of steady-state estimator steps (allocation tests, throughput
+benchmark)."""
 
 from __future__ import annotations
 
