@@ -4,7 +4,8 @@
     python benchmarks/daemon.py [--duration 60] [--sweep 2000,4000,8000,16000,32000]
                                 [--sweep-duration 5] [--json PATH] [--set KEY=VALUE]
 
-Figures (DESIGN §10 targets: <= 10 % of one core, p99 IMU-in -> ATTITUDE-out <= 2 ms, no loss):
+Figures (docs/design.md §10 targets: <= 10 % of one core, p99 IMU-in -> ATTITUDE-out <= 2 ms,
+no loss):
   CPU          utime + stime of the daemon process (all its threads, /proc/<pid>/stat) over
                the streaming phase, as % of one core.  Start-up (imports, JIT warm-up) excluded.
   latency      measured two ways.  navd: the daemon's own, from the host time it read the

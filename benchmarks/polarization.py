@@ -16,7 +16,7 @@ IMU: the scenarios' ``mems_seed001_h`` (seed 001's MEMS, 12 deg/h, 5 mg, 0.24 de
 VRW 0.3 m/s/sqrt(h); ``--grade mems_seed001`` takes seed 001's VRW as printed, 0.3 m/s/sqrt(s);
 firmware_sim.scenario.GRADES says why).  The filter's IMU model is set to the simulated one.
 Prior knowledge of the biases: none (``--learn-s 0``), or what the filter learned on a drive
-of ``--learn-s`` seconds with the same IMU, kept through :mod:`navd.bias_store` as the daemon
+of ``--learn-s`` seconds with the same IMU, kept through :mod:`navd.daemon.bias_store` as the daemon
 keeps it between runs.
 
 Every run starts with the heading 5 deg off (init.heading_source = config, 1-sigma 10 deg).
@@ -56,16 +56,16 @@ from firmware_sim.polarization import PolMavlinkEncoder
 from firmware_sim.run import SimRun, generate
 from firmware_sim.scenario import load_scenario
 from firmware_sim.score import matched_imu_config
-from navd import bias_store
-from navd.bias_store import BiasStoreSection
 from navd.config import EstimatorConfig, load_config
 from navd.core.aiding.polarization import PolarizationAiding
 from navd.core.estimator import Estimator
 from navd.core.rotation import log_so3, mat_to_euler
-from navd.io.polarization import decode
+from navd.daemon import bias_store
+from navd.daemon.bias_store import BiasStoreSection
+from navd.io.pol_wire import decode
 from navd.types import ImuSample, PolSample
+from navd.units import RAD2DEG as R2D
 
-R2D = 180.0 / math.pi
 G_MG = 9.80665e-3  # m/s^2 per mg
 TILTS = (0, 15, 30, 45, 60, 75, 90)
 # initial yaw per nominal tilt, deg (seed 000, Tables S1 and S2)
@@ -114,7 +114,7 @@ def _learn_cached(key: tuple[Any, ...]) -> tuple[str, str]:
 def _learn(case: dict[str, Any]) -> tuple[dict[str, Any], str]:
     """Drive first (scenario pol_moving, completed mode, no polarization) with the same IMU
     (same seed and grade: the same constant biases), keep what the filter learned through
-    :mod:`navd.bias_store` (snapshot -> file -> apply, as the daemon does), and return the
+    :mod:`navd.daemon.bias_store` (snapshot -> file -> apply, as the daemon does), and return the
     config tables the static run starts from."""
     sc = load_scenario("pol_moving", {"duration_s": case["learn_s"], **_scenario_overrides(case)})
     run = generate(sc, seed=case["seed"])
@@ -246,8 +246,8 @@ def _fmt(x: float, nd: int = 3) -> str:
 def print_imu(records: list[dict[str, Any]]) -> None:
     r = records[0]
     sds = [x["filter_accel_bias_sd_mg"] for x in records if x["variant"] == "static"]
-    prior = (f"learned on a {r['learn_s']:.0f} s drive via navd.bias_store (filter accel bias "
-             f"1-sigma {min(sds):.2f}-{max(sds):.2f} mg)" if r.get("learn_s") else
+    prior = (f"learned on a {r['learn_s']:.0f} s drive via navd.daemon.bias_store (filter "
+             f"accel bias 1-sigma {min(sds):.2f}-{max(sds):.2f} mg)" if r.get("learn_s") else
              f"none (filter accel bias 1-sigma {r['filter_accel_bias_sd_mg']:.2f} mg)")
     print(f"IMU: {r['imu_grade'] or 'custom'}, accel bias 1-sigma "
           f"{r['accel_bias_sigma_mg']:.2f} mg, VRW {r['vrw_mps_per_sqrt_s']:.4g} m/s/sqrt(s); "
@@ -444,7 +444,8 @@ def main(argv: list[str] | None = None) -> int:
                          "mems_seed001_h; mems_seed001 = seed 001's noise as printed)")
     ap.add_argument("--learn-s", type=float, default=0.0,
                     help="static variant: drive this long first (same IMU) and start from the "
-                         "biases it learned, through navd.bias_store (0 = no prior knowledge)")
+                         "biases it learned, through navd.daemon.bias_store (0 = no prior "
+                         "knowledge)")
     ap.add_argument("--accel-bias-mg", type=float, default=None,
                     help="1-sigma accelerometer bias of the simulated IMU and of the filter's "
                          "prior (default: the MEMS grade's 5 mg)")

@@ -33,8 +33,7 @@ from navd.config import EstimatorConfig, load_config
 from navd.core.estimator import Estimator
 from navd.core.rotation import log_vec
 from navd.types import PolSample
-
-R2D = 180.0 / math.pi
+from navd.units import RAD2DEG as R2D
 
 
 def run_case(case: dict[str, Any]) -> dict[str, Any]:

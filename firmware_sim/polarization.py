@@ -18,7 +18,7 @@ direction comes from :mod:`navd.core.sun` (its accuracy is tested against PyEphe
 
 Wire.  :func:`encode_mavlink` writes the NAVD_SKY_POLARIZATION MAVLink 2 message defined
 in ``navd/io/navd_polarization.xml`` (docs/polarization.md); navd decodes it with
-:func:`navd.io.polarization.decode`.
+:func:`navd.io.pol_wire.decode`.
 """
 
 from __future__ import annotations
@@ -31,11 +31,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from firmware_sim.scenario import DEG, PolarizationSpec
+from firmware_sim.scenario import PolarizationSpec
 from navd.core.rotation import euler_to_mat
 from navd.core.sun import sun_ned_into, utc_to_gps_s
-from navd.io import polarization as wire
+from navd.io import pol_wire as wire
 from navd.types import PolSample
+from navd.units import DEG
 
 Arr = npt.NDArray[np.float64]
 

@@ -18,8 +18,6 @@ import numpy as np
 import numpy.typing as npt
 
 from firmware_sim.scenario import (
-    ARCSEC,
-    DEG,
     DovSpec,
     GroundSpec,
     ModulationSpec,
@@ -31,6 +29,7 @@ from firmware_sim.scenario import (
     TurnEvent,
 )
 from navd.core.earth import gravity
+from navd.units import ARCSEC, DEG
 
 Arr = npt.NDArray[np.float64]
 TWO_PI = 2.0 * np.pi

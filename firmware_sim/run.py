@@ -13,10 +13,11 @@ import numpy.typing as npt
 from tqdm import tqdm
 
 from firmware_sim.profiles import build_profile, dov_profile
-from firmware_sim.scenario import DEG, Scenario
+from firmware_sim.scenario import Scenario
 from firmware_sim.sensors import corrupt_imu, simulate_gnss
 from firmware_sim.truth import build_truth
 from navd.types import FixType, GnssSample, ImuSample, PolSample
+from navd.units import DEG
 
 Arr = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]

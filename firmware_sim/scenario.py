@@ -23,6 +23,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from navd.units import DEG
+
 __all__ = [
     "DovSpec",
     "DropoutSpec",
@@ -46,8 +48,6 @@ __all__ = [
     "scenario_dict",
 ]
 
-DEG = math.pi / 180.0
-ARCSEC = DEG / 3600.0
 
 
 class ScenarioError(ValueError):

@@ -19,10 +19,11 @@ from navd.config import EstimatorConfig
 from navd.core.earth import radii
 from navd.core.estimator import Estimator
 from navd.core.rotation import log_so3, mat_to_euler
-from navd.types import GnssSample, ImuSample
+from navd.pipeline import solutions
+from navd.types import GnssSample
+from navd.units import RAD2DEG as R2D
 
 Arr = npt.NDArray[np.float64]
-R2D = 180.0 / math.pi
 
 
 @dataclass
@@ -87,16 +88,12 @@ def score_run(run: SimRun, cfg: EstimatorConfig, rate_hz: float = 10.0,
     e = est if est is not None else Estimator(cfg)
     t0 = int(run.truth_t_us[0])
     dt_truth = int(run.truth_t_us[1] - run.truth_t_us[0])
-    period = round(1e6 / rate_hz)
     rows: list[tuple[float, ...]] = []
     phi = np.zeros(3)
-    for s in run.samples():
-        e.push(s)
-        if not (isinstance(s, ImuSample) and e.initialized) or (s.t_us - t0) % period:
-            continue
-        k = (s.t_us - t0) // dt_truth
+    # the daemon's output rule: on the sensor-time grid of the scoring rate
+    for sol in solutions(e, run.samples(), rate_hz):
+        k = (sol.t_us - t0) // dt_truth
         c_true = run.truth_mat_nb[k]
-        sol = e.solution()
         dlt = np.array(mat_to_euler(e.mat_nb)) - run.truth_euler[k]
         dlt = (dlt + math.pi) % (2 * math.pi) - math.pi
         # phi = -Log(C_hat C^T)
@@ -109,7 +106,7 @@ def score_run(run: SimRun, cfg: EstimatorConfig, rate_hz: float = 10.0,
         h = float(run.truth_pos[k, 2])
         dp = e.pos - run.truth_pos[k]
         dpn = (dp[0] * (r_m + h), dp[1] * (r_n + h) * math.cos(run.truth_pos[k, 0]), -dp[2])
-        rows.append((s.t_us * 1e-6, *(dlt * R2D), *(np.array(sol.att_sd_rad) * R2D), *dv,
+        rows.append((sol.t_us * 1e-6, *(dlt * R2D), *(np.array(sol.att_sd_rad) * R2D), *dv,
                      *dpn, float(phi @ np.linalg.solve(patt, phi)),
                      float(dv @ np.linalg.solve(pvel, dv)), float(sol.heading_aligned)))
     a = np.array(rows) if rows else np.zeros((0, 18))

@@ -1,4 +1,4 @@
-"""The ``navd`` command: ``run`` (daemon), ``demo``, ``replay``."""
+"""The ``navd`` command: a table of subcommands, each ``navd.cli.<name>.main(argv)``."""
 
 from __future__ import annotations
 
@@ -6,12 +6,15 @@ import importlib
 import sys
 
 _COMMANDS = {
-    "replay": ("navd.replay", "run the estimator over recorded CSV data or flight logs"),
-    "run": ("navd.daemon", "run the daemon (sources, estimator, sinks from config)"),
-    "demo": ("navd.demo", "simulator -> MAVLink -> daemon -> Zenoh, live errors vs truth"),
-    "dov-grid": ("navd.dov_cli", "deflection-of-the-vertical grid from a gravity model (EGM96)"),
-    "report": ("navd.report", "HTML evaluation (figures, RMS/percentiles) of a replay"),
+    "replay": ("navd.cli.replay", "run the estimator over recorded CSV data or flight logs"),
+    "run": ("navd.cli.run", "run the daemon (sources, estimator, sinks from config)"),
+    "demo": ("navd.cli.demo", "simulator -> MAVLink -> daemon -> Zenoh, live errors vs truth"),
+    "dov-grid": ("navd.cli.dov_grid", "deflection-of-the-vertical grid from a gravity model"),
+    "report": ("navd.cli.report", "HTML evaluation (figures, RMS/percentiles) of a replay"),
 }
+
+# top-level module of an optional dependency -> the extra (pyproject.toml) that installs it
+_OPTIONAL = {"matplotlib": "plot", "netCDF4": "dov", "gravitas": "dov", "pyulog": "logs"}
 
 
 def _usage() -> str:
@@ -32,7 +35,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         mod = importlib.import_module(_COMMANDS[cmd][0])
     except ModuleNotFoundError as exc:
-        print(f"navd {cmd}: not available in this build ({exc})", file=sys.stderr)
+        # only a missing optional extra is a property of this installation; anything else
+        # (navd's own modules, a core dependency) is a bug and keeps its traceback
+        extra = _OPTIONAL.get((exc.name or "").partition(".")[0])
+        if extra is None:
+            raise
+        print(f"navd {cmd}: needs the optional package {exc.name!r}: "
+              f"pip install 'navd[{extra}]'", file=sys.stderr)
         return 2
     result: int = mod.main(rest)
     return result

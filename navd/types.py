@@ -106,7 +106,7 @@ class NavSolution:
 
 @dataclass(frozen=True, slots=True)
 class PolSample:
-    """A zenith skylight-polarization reading (DESIGN §7).
+    """A zenith skylight-polarization reading (docs/design.md §7).
 
     Attributes:
         t_us: sensor time stamp, integer microseconds (same clock as the IMU).
@@ -119,3 +119,7 @@ class PolSample:
     aop_rad: float
     dop: float
     utc_unix_s: float
+
+
+Sample = ImuSample | GnssSample | PolSample
+"""Anything :meth:`navd.core.estimator.Estimator.push` takes."""

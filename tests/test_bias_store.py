@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 from daemon_util import car_run
 
-from navd import bias_store
-from navd.bias_store import BiasStoreSection
 from navd.config import EstimatorConfig, load_config
+from navd.config.daemon import DaemonConfig
 from navd.core.estimator import Estimator
-from navd.daemon import Daemon
-from navd.daemon_config import DaemonConfig
-from navd.record import RecordingReader
-from navd.service import SdNotifier
+from navd.daemon import bias_store
+from navd.daemon.bias_store import BiasStoreSection
+from navd.daemon.daemon import Daemon
+from navd.daemon.service import SdNotifier
+from navd.io.recording import RecordingReader
 
 NOW = 1.8e9  # 2027-01-15
 

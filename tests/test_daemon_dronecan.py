@@ -22,15 +22,15 @@ from dronecan import transport
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from firmware_sim.stream import dronecan_events, stream_dronecan_async
+from navd.cli.replay import main as replay_main
 from navd.config import load_config
-from navd.daemon import Daemon
-from navd.daemon_config import DaemonConfig
+from navd.config.daemon import DaemonConfig
+from navd.daemon.daemon import Daemon
+from navd.daemon.service import SdNotifier
+from navd.daemon.sinks import CallbackSink
 from navd.io.dronecan import SOLUTION_DTID
+from navd.io.recording import read_solutions_jsonl
 from navd.io.zenoh import ZenohConfig, ZenohSubscriber
-from navd.record import read_solutions_jsonl
-from navd.replay import main as replay_main
-from navd.service import SdNotifier
-from navd.sinks import CallbackSink
 from navd.types import NavSolution
 
 DURATION_S = 30.0

@@ -37,8 +37,9 @@ from pymavlink import mavutil
 from firmware_sim import SimRun
 from navd.config import EstimatorConfig
 from navd.core.estimator import Estimator
+from navd.io.recording import RecordingReader
 from navd.io.zenoh import ZenohConfig, attitude_payload
-from navd.record import RecordingReader, solutions
+from navd.pipeline import solutions
 
 DURATION_S = 40.0
 RATE_FACTOR = 8.0

@@ -1,4 +1,4 @@
-"""The systemd unit: verified by systemd itself, and it says what DESIGN §9 asks."""
+"""The systemd unit: verified by systemd itself, and it says what docs/design.md §9 asks."""
 
 from __future__ import annotations
 

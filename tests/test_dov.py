@@ -25,7 +25,7 @@ from navd.core.aiding.dov import (
 from navd.core.earth import OMEGA_IE, radii
 from navd.core.estimator import Estimator
 from navd.io.dov_grid import DovSettings, load_dov_grid, save_dov_grid
-from navd.setup import build_estimator
+from navd.pipeline import build_estimator
 
 Arr = npt.NDArray[np.float64]
 D2R = math.pi / 180.0

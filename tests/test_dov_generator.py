@@ -16,15 +16,15 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from navd.cli.dov_grid import main
 from navd.core.aiding.dov import ARCSEC, MGAL
 from navd.core.earth import gravity
-from navd.dov_cli import (
+from navd.eval.gravity_model import (
     Egm96Gravitas,
     NormalField,
     classical_dov,
     disturbance_ned,
     gravity_ned,
-    main,
     mechanization_dov,
     normal_j2,
 )

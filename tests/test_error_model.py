@@ -276,7 +276,7 @@ def test_build_f_matches_numerical_jacobian(lat_deg: float) -> None:
 
 
 def test_build_f_structure_and_design_entries() -> None:
-    """Spot checks of the closed forms in DESIGN §3 that are exact (no radii derivatives)."""
+    """Spot checks of the exact closed forms in docs/design.md §3 (no radii derivatives)."""
     rng = np.random.default_rng(3)
     true, _, raw_f = random_case(rng, 37.0)
     F = navd_f(true, raw_f)

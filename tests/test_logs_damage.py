@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 from fixtures.logwriters import Source, source_from_sim, write_dataflash, write_tlog, write_ulog
 
+from navd.cli.replay import main as replay_main
+from navd.eval.report import build_report
 from navd.io.logs import LogFormatError, read_log
-from navd.replay import main as replay_main
-from navd.report import build_report
 
 # name -> (file name, writer returning the byte offset of every data record)
 BINARY: dict[str, tuple[str, Callable[[Path, Source], list[int]]]] = {

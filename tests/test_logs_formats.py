@@ -20,8 +20,8 @@ from fixtures.logwriters import (
     write_x8,
 )
 
+from navd.cli.replay import main as replay_main
 from navd.io.logs import LogFormatError, LogOptions, detect_format, read_log
-from navd.replay import main as replay_main
 
 Writer = Callable[[Path, Source], object]
 
@@ -161,7 +161,7 @@ def test_ulog_options(src: Source, tmp_path: Path) -> None:
 def test_log_replay_agrees_with_recording_replay(src: Source, tmp_path: Path) -> None:
     """Samples from a log, recorded as the daemon records its pushes, replay to the same
     states: at every instant both replays write, every column agrees."""
-    record = pytest.importorskip("navd.record")
+    record = pytest.importorskip("navd.io.recording")
     p = _write("dataflash", src, tmp_path)
     data = read_log(p)
     rec = tmp_path / "run.navdrec"

@@ -260,7 +260,7 @@ def test_course_row(pitch_deg: float) -> None:
 
         Hn = fd_jacobian(zf, 1)
         assert_rows(H[None, :], Hn, 1e-6, 1e-10)
-        # DESIGN §4 closed form
+        # docs/design.md §4 closed form
         tp = math.tan(math.radians(pitch_deg))
         np.testing.assert_allclose(H[:3], [-tp * math.cos(yaw), -tp * math.sin(yaw), -1.0],
                                    atol=1e-12)

@@ -16,7 +16,7 @@ from pymavlink.generator import mavgen, mavparse
 
 from firmware_sim.polarization import PolMavlinkEncoder, encode_mavlink, parse_utc
 from navd.core.sun import utc_to_gps_s
-from navd.io.polarization import CRC_EXTRA, DIALECT_XML, MSG_ID, decode, decode_payload
+from navd.io.pol_wire import CRC_EXTRA, DIALECT_XML, MSG_ID, decode, decode_payload
 from navd.types import PolSample
 
 UTC0 = parse_utc("2020-06-01T10:12:00Z")
@@ -124,4 +124,4 @@ def test_bad_frames_and_values_are_refused_and_counted() -> None:
 
 def test_xml_is_shipped_next_to_the_decoder() -> None:
     assert DIALECT_XML.is_file() and DIALECT_XML.parent == Path(
-        __import__("navd.io.polarization", fromlist=["x"]).__file__).parent
+        __import__("navd.io.pol_wire", fromlist=["x"]).__file__).parent

@@ -67,7 +67,7 @@ def test_h_matches_finite_differences_of_the_nonlinear_model() -> None:
             am, _ = predict_aop(exp_so3(-d) @ c_hat, mat_sb, s_n)
             num[k] = -_wrap_half_pi(ap - am) / (2 * eps)
         assert np.allclose(h, num, rtol=1e-5, atol=1e-6 * max(1.0, float(np.abs(h).max())))
-        # DESIGN §7's row for a sensor aligned with the body
+        # docs/design.md §7's row for a sensor aligned with the body
         if trial < 20:
             sb = c_hat.T @ s_n
             skew = np.array([[0, -s_n[2], s_n[1]], [s_n[2], 0, -s_n[0]], [-s_n[1], s_n[0], 0]])

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from fixtures.logwriters import Source, source_from_sim, write_ulog, write_x8
 
-from navd.replay import main as replay_main
-from navd.report import (
+from navd.cli.replay import main as replay_main
+from navd.cli.report import main as report_main
+from navd.eval.report import (
     RefSeries,
     build_report,
     course_check,
@@ -21,7 +22,6 @@ from navd.report import (
     interpolate_reference,
     wrap_deg,
 )
-from navd.report import main as report_main
 
 
 class _Links(HTMLParser):

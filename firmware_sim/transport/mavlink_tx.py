@@ -16,8 +16,8 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from navd.types import GnssSample, ImuSample
+from navd.units import G0 as G0_MPS2
 
-G0_MPS2 = 9.80665
 UINT16_MAX = 0xFFFF
 _I16 = (-(2**15), 2**15 - 1)
 _I32 = (-(2**31), 2**31 - 1)

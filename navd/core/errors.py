@@ -1,4 +1,4 @@
-"""Continuous-time 15-state error model ``dx/dt = F x + G w`` in NED (DESIGN §3).
+"""Continuous-time 15-state error model ``dx/dt = F x + G w`` in NED (docs/design.md §3).
 
 State order and sign conventions are those of :mod:`navd`.  With ``RMh = R_M + h``,
 ``RNh = R_N + h``, ``w_in = w_ie + w_en`` and ``f^n = C f^b``::
@@ -7,7 +7,7 @@ State order and sign conventions are those of :mod:`navd`.  With ``RMh = R_M + h
     ddv/dt  = [f^n x] phi - (2 w_ie + w_en) x dv - (2 dw_ie + dw_en) x v + dg(dp) + C dba
     ddp/dt  = d(lat_dot, lon_dot, h_dot)/d(v, p)
 
-The seed papers print this matrix in ENU with several wrong entries (DESIGN §3 lists them);
+The seed papers print this matrix in ENU with several wrong entries (docs/design.md §3 lists them);
 this one is derived from the mechanization and tested against its numerical Jacobian, so
 the derivatives of the radii of curvature and of normal gravity are kept rather than
 neglected (they cost nothing and make the test tight).

@@ -1,6 +1,6 @@
 """The estimator: one entry point, :meth:`Estimator.push`, for every input sample.
 
-A 15-state error-state Kalman filter (DESIGN §3) around the strapdown mechanization, aided
+A 15-state error-state Kalman filter (docs/design.md §3) around the strapdown mechanization, aided
 by GNSS position, velocity and (in ``completed`` mode) GNSS course as heading (§4), with an
 optional robust GNSS velocity pre-filter (MCTLS, §5).  Every array is allocated in
 ``__init__``; a steady-state IMU step or GNSS update creates no ndarray.
@@ -583,7 +583,7 @@ class Estimator:
         return nis
 
     def _course_usable(self, g: GnssSample) -> bool:
-        """Whether heading ~ course now (DESIGN §4); sets :attr:`course_status`."""
+        """Whether heading ~ course now (docs/design.md §4); sets :attr:`course_status`."""
         c = self.cfg
         if not self._course_enabled:
             self.course_status = ("disabled: multirotor profile (course is not heading)"

@@ -19,8 +19,7 @@ from dataclasses import dataclass
 
 from navd.diag import Counters, RateLimitedLog
 from navd.types import GnssSample, ImuSample, PolSample
-
-G0_MPS2 = 9.80665  # standard gravity, the "g" of mG on the wire (MAVLink, ArduPilot, PX4)
+from navd.units import G0 as G0_MPS2
 
 Sample = ImuSample | GnssSample | PolSample
 SampleCallback = Callable[[Sample], None]

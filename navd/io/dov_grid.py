@@ -37,7 +37,8 @@ import numpy as np
 import numpy.typing as npt
 
 from navd.config import ConfigError
-from navd.core.aiding.dov import ARCSEC, MGAL, DovGrid, DovGridError
+from navd.core.aiding.dov import MGAL, DovGrid, DovGridError
+from navd.units import ARCSEC
 
 Arr = npt.NDArray[np.float64]
 

@@ -71,8 +71,9 @@ from navd.io.common import (
     imu_reject_reason,
     monotonic_us,
 )
-from navd.io.polarization import reading_to_sample
+from navd.io.pol_wire import reading_to_sample
 from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample
+from navd.units import DEG
 
 __all__ = [
     "FIX2_DTID",
@@ -96,7 +97,6 @@ FIX2_DTID = 1063
 POL_DTID = 20440
 POL_SIGNATURE = 0x53EF5B29B1B13DDF
 SOLUTION_DTID = 1000
-DEG = math.pi / 180.0
 
 _RAW_IMU = dronecan.TYPENAMES["uavcan.equipment.ahrs.RawIMU"]
 _FIX2 = dronecan.TYPENAMES["uavcan.equipment.gnss.Fix2"]

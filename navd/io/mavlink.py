@@ -54,7 +54,6 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from navd.diag import Counters, RateLimitedLog
 from navd.io.common import (
-    G0_MPS2,
     Limits,
     RateIntegrator,
     Rejector,
@@ -66,6 +65,8 @@ from navd.io.common import (
     monotonic_us,
 )
 from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample
+from navd.units import DEG
+from navd.units import G0 as G0_MPS2
 
 __all__ = [
     "MavlinkDecoder",
@@ -81,7 +82,6 @@ __all__ = [
 
 _log = logging.getLogger(__name__)
 
-DEG = math.pi / 180.0
 UINT16_MAX = 0xFFFF
 _HIGHRES_ACC_GYRO = 0x3F  # HIGHRES_IMU_UPDATED_{X,Y,Z}ACC | {X,Y,Z}GYRO
 _GPS_FIX = {
@@ -113,7 +113,7 @@ class MavlinkInputConfig:
     use_receive_time: stamp samples with the local receive clock instead of the sensor time
         (for senders whose time fields are zero or unrelated between IMU and GNSS).
     polarization: also accept navd's NAVD_SKY_POLARIZATION (private dialect, id 44000,
-        :mod:`navd.io.polarization`) as PolSample.
+        :mod:`navd.io.pol_wire`) as PolSample.
     """
 
     imu_messages: frozenset[str] = frozenset({"HIGHRES_IMU"})
@@ -298,7 +298,7 @@ class MavlinkDecoder:
     def _polarization(self, frame: bytes, recv_t_us: int) -> PolSample | Literal[False] | None:
         """NAVD_SKY_POLARIZATION -> PolSample; None if it is ours but refused (counted);
         False if the frame is not ours, or ours with a bad CRC (then it may be noise)."""
-        from navd.io import polarization as pol_wire
+        from navd.io import pol_wire
 
         why: dict[str, int] = {}
         s = pol_wire.decode(frame, recv_t_us, use_receive_time=self.config.use_receive_time,

@@ -1,6 +1,6 @@
 """Deflection of the vertical (DOV): gravity models evaluated along the track.
 
-Model (DESIGN §6).  The mechanization's gravity in NED is::
+Model (docs/design.md §6).  The mechanization's gravity in NED is::
 
     g^n = [-xi gamma, -eta gamma, gamma + dg_D]                                   (1)
 
@@ -49,13 +49,13 @@ import numpy.typing as npt
 
 from navd.core._jit import jit
 from navd.core.earth import OMEGA_IE, radii
+from navd.units import ARCSEC
 
 if TYPE_CHECKING:
     from navd.core.estimator import Estimator
 
 Arr = npt.NDArray[np.float64]
 
-ARCSEC = math.pi / (180.0 * 3600.0)  # rad per arcsecond
 MGAL = 1e-5  # m/s^2 per mGal
 TWO_PI = 2.0 * math.pi
 
@@ -331,7 +331,7 @@ class AlongTrackSinusoid:
 # ------------------------------------------------------------------------------ status
 
 # Why an estimator runs on normal gravity although a DOV model was configured (set by
-# navd.setup.build_estimator when it refuses a grid); weak so estimators are not kept alive.
+# navd.pipeline.build_estimator when it refuses a grid); weak so estimators are not kept alive.
 _REFUSED: weakref.WeakKeyDictionary[Estimator, str] = weakref.WeakKeyDictionary()
 
 

@@ -1,4 +1,4 @@
-"""Completed heading update: heading from GNSS course (seed 001), DESIGN §4.
+"""Completed heading update: heading from GNSS course (seed 001), docs/design.md §4.
 
 With chi = atan2(vE, vN) the course of the lever-arm-corrected GNSS velocity, and psi_hat
 the INS yaw, the innovation and its linear model are::

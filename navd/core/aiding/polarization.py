@@ -1,4 +1,6 @@
-"""Skylight-polarization compass: the zenith angle-of-polarization update (DESIGN §7, seed 000).
+"""Skylight-polarization compass: the zenith angle-of-polarization update (seed 000).
+
+Model and derivation: docs/design.md §7.
 
 Model.  In a single-scattering (Rayleigh) sky the E-vector of the light arriving along the
 sensor boresight ``d`` is perpendicular to the scattering plane spanned by ``d`` and the sun
@@ -20,7 +22,7 @@ Linearisation with ``Ĉ = Exp(-phi) C`` (errors computed - true)::
     z = wrap(alpha_hat - alpha_meas) = h^T phi + v,   v ~ N(0, sigma^2)
     h^T = [-s_sy, s_sx, 0] / (s_sx² + s_sy²) · (-C_b^s Ĉ^T [s_n×])
 
-i.e. DESIGN §7's row with the mounting inserted (checked against finite differences of the
+i.e. docs/design.md §7's row with the mounting inserted (checked against finite differences of the
 nonlinear alpha(phi) in tests/test_polarization.py).  Only the attitude columns are
 non-zero; position errors move s_n by |dp|/1 AU, nothing.  With a level sensor this is a
 heading measurement (pure heading when the sun is on the horizon); tilt enters as the sun
@@ -52,12 +54,12 @@ from navd.core.chi2 import chi2_quantile
 from navd.core.rotation import euler_to_mat_into
 from navd.core.sun import sun_ned_into
 from navd.types import PolSample
+from navd.units import DEG
 
 if TYPE_CHECKING:
     from navd.core.estimator import Estimator
 
 Arr = npt.NDArray[np.float64]
-DEG = math.pi / 180.0
 
 __all__ = ["PolarizationAiding", "build_polarization", "pol_row", "predict_aop"]
 

@@ -3,7 +3,7 @@
 ``read_log(path)`` detects the format from the content (or takes ``fmt``) and returns a
 :class:`LogData`: the samples the daemon would push, in time order, plus the log's onboard
 attitude as a reference.  ``navd replay --log FILE`` pushes them through the same
-:func:`navd.replay.run_replay` as the CSV path.
+:func:`navd.cli.replay.run_replay` as the CSV path.
 
 Detection (first bytes, not the file name):
     ulog       ``ULog\\x01\\x12\\x35`` magic

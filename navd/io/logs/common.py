@@ -29,16 +29,15 @@ from navd.core.earth import radii
 from navd.core.rotation import mat_to_euler
 from navd.diag import Counters, RateLimitedLog
 from navd.io.common import RateIntegrator, Rejector
-from navd.io.replay import ReadReport, merge, read_gnss, read_imu
+from navd.io.csv_replay import ReadReport, merge, read_gnss, read_imu
 from navd.types import FixType, GnssSample, ImuSample, PolSample
+from navd.units import RAD2DEG as R2D
 
 if TYPE_CHECKING:
     from navd.core.estimator import Estimator
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
-DEG = math.pi / 180.0
-R2D = 180.0 / math.pi
 
 FORMATS = ("csv", "ulog", "dataflash", "tlog", "x8")
 

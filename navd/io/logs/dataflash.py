@@ -32,7 +32,6 @@ from typing import Any
 import numpy as np
 
 from navd.io.logs.common import (
-    DEG,
     LogDamage,
     LogData,
     LogFormatError,
@@ -41,6 +40,7 @@ from navd.io.logs.common import (
     SampleBuilder,
 )
 from navd.types import FixType, GnssSample
+from navd.units import DEG
 
 _FIX = {3: FixType.FIX_3D, 4: FixType.DGPS, 5: FixType.RTK_FLOAT, 6: FixType.RTK_FIXED}
 

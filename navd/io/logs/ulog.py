@@ -35,7 +35,6 @@ from typing import Any
 import numpy as np
 
 from navd.io.logs.common import (
-    DEG,
     F64,
     LogDamage,
     LogData,
@@ -46,6 +45,7 @@ from navd.io.logs.common import (
     quat_to_euler,
 )
 from navd.types import FixType, GnssSample, ImuSample
+from navd.units import DEG
 
 MAGIC = b"ULog\x01\x12\x35"
 _TYPES = frozenset(b"FDIMPQARSOLCB")

@@ -31,7 +31,6 @@ from pathlib import Path
 import numpy as np
 
 from navd.io.logs.common import (
-    DEG,
     LogDamage,
     LogData,
     LogFormatError,
@@ -40,6 +39,7 @@ from navd.io.logs.common import (
     SampleBuilder,
 )
 from navd.types import FixType, GnssSample
+from navd.units import DEG
 
 FILES = {"IMU.txt": 8, "GPSraw.txt": 7, "ATT.txt": 5}
 

@@ -1,5 +1,5 @@
 """The daemon's outputs.  A sink reads NavSolutions (never estimator state) on its own
-:class:`~navd.record.OutputSchedule`, and keeps receive -> send latency statistics.
+:class:`~navd.pipeline.OutputSchedule`, and keeps receive -> send latency statistics.
 
 MavlinkSink    ATTITUDE + ATTITUDE_QUATERNION (+ GLOBAL_POSITION_INT), HEARTBEAT task
 ZenohSink      navd/<vehicle>/attitude per output, navd/<vehicle>/status from the daemon
@@ -17,7 +17,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from navd.io.dronecan import DronecanEncoder, DronecanLink
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink, MavlinkSender
 from navd.io.zenoh import ZenohPublisher
-from navd.record import OutputSchedule
+from navd.pipeline import OutputSchedule
 from navd.types import NavSolution
 
 __all__ = ["CallbackSink", "DronecanSink", "LatencyStats", "MavlinkSink", "Sink", "ZenohSink"]

@@ -38,8 +38,9 @@ from pathlib import Path
 from typing import Any
 
 from navd import __version__
-from navd.config import G0, ConfigError, EstimatorConfig
+from navd.config import ConfigError, EstimatorConfig
 from navd.core.estimator import Estimator
+from navd.units import G0
 
 __all__ = ["SCHEMA", "BiasStoreSection", "apply", "save", "snapshot"]
 

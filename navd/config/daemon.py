@@ -1,7 +1,7 @@
 """The daemon's own config sections: ``[daemon]``, ``[mavlink]``, ``[dronecan]``, ``[zenoh]``,
 ``[bias_store]``.
 
-Same rules as :mod:`navd.config`: the unit is in the key name (``status_period_s``,
+Same rules as :mod:`navd.config.load`: the unit is in the key name (``status_period_s``,
 ``attitude_rate_hz``), every key is checked for type and range, and an error names the
 section, the key and what it expects.  Unknown keys and unknown top-level tables are errors
 too, so a typo never silently falls back to a default.  :func:`load_daemon_config` also
@@ -16,8 +16,8 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from navd.bias_store import BiasStoreSection
 from navd.config import ConfigError, EstimatorConfig, load_config
+from navd.daemon.bias_store import BiasStoreSection
 from navd.io.dronecan import DronecanConfig
 from navd.io.mavlink import GNSS_MESSAGES, IMU_MESSAGES, MavlinkInputConfig, parse_mavlink_url
 from navd.io.zenoh import ZenohConfig
@@ -200,7 +200,7 @@ class ZenohSection:
                            multicast_scouting=self.multicast_scouting)
 
 
-# sections other parts of navd read (navd.setup: [dov]; polarization aid: [polarization])
+# sections other parts of navd read (navd.pipeline: [dov]; polarization aid: [polarization])
 _OTHER_SECTIONS = frozenset({"dov", "polarization"})
 
 _SECTIONS: dict[str, type[Any]] = {

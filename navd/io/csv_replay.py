@@ -17,8 +17,7 @@ from pathlib import Path
 from typing import TextIO
 
 from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample
-
-DEG = math.pi / 180.0
+from navd.units import DEG
 
 IMU_RATE_COLS = ("t_us", "gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 IMU_INC_COLS = ("t_us", "dt_us", "dtheta_x", "dtheta_y", "dtheta_z", "dvel_x", "dvel_y",

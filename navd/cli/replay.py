@@ -1,7 +1,7 @@
 """``navd replay``: run the estimator over recorded data, exactly as the daemon would.
 
-Output rows are written at every GNSS epoch that the estimator consumed and at a fixed rate
-(default 50 Hz) in between, so plots have both the update instants and a regular grid.
+Output rows follow the daemon's output rule (:mod:`navd.pipeline`): a solution at the first
+IMU sample at or past each multiple of the output period (default 50 Hz) on the sensor clock.
 """
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ import copy
 import sys
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from navd.config import ConfigError, apply_overrides, load_config
 from navd.core.estimator import Estimator
-from navd.io.replay import (
+from navd.io.csv_replay import (
     ReadReport,
     ReplayFormatError,
     SolutionWriter,
@@ -25,50 +25,40 @@ from navd.io.replay import (
     read_imu,
     read_pol,
 )
-from navd.types import GnssSample, ImuSample, PolSample
+from navd.pipeline import build_estimator, solutions
+from navd.types import Sample
 
 if TYPE_CHECKING:
     from navd.io.logs import AidingWriter
 
 
-def run_replay(est: Estimator, samples: Iterable[ImuSample | GnssSample | PolSample],
-               writer: SolutionWriter,
+def run_replay(est: Estimator, samples: Iterable[Sample], writer: SolutionWriter,
                rate_hz: float = 50.0, progress_total: int | None = None,
                progress: bool = False, aiding: AidingWriter | None = None) -> int:
-    """Push every sample; write solutions; return the number of rows written.
+    """Push every sample; write the solutions a sink at ``rate_hz`` would get; return the
+    number of rows written (:func:`navd.pipeline.solutions`: the daemon's output rule).
 
     ``aiding``: also write one row per GNSS epoch on what the filter did with it.
     """
-    period_us = int(1e6 / rate_hz) if rate_hz > 0 else 0
-    next_out = -1
     rows = 0
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=progress_total, unit="samples", mininterval=0.5, file=sys.stderr)
-    for s in samples:
-        if aiding is not None and isinstance(s, GnssSample):
-            aiding.before(est, s)
-            advanced = est.push(s)
-            aiding.after(est, s, advanced)
-        else:
-            advanced = est.push(s)
-        if bar is not None:
-            bar.update(1)
-        if not est.initialized or not advanced:
-            continue
-        if isinstance(s, GnssSample):
-            writer.write(est.solution())
-            rows += 1
-            continue
-        if period_us and s.t_us >= next_out:
-            writer.write(est.solution())
-            rows += 1
-            next_out = (s.t_us // period_us + 1) * period_us
+        samples = _counted(samples, bar)
+    for sol in solutions(est, samples, rate_hz, aiding):
+        writer.write(sol)
+        rows += 1
     if bar is not None:
         bar.close()
     return rows
+
+
+def _counted(samples: Iterable[Sample], bar: Any) -> Iterator[Sample]:
+    for s in samples:
+        bar.update(1)
+        yield s
 
 
 def _count_lines(path: Path) -> int:
@@ -149,12 +139,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _replay_recording(a: argparse.Namespace) -> int:
     """Replay a daemon recording: same config (unless --config/--set), same output rule."""
-    from navd.record import (
-        RecordingError,
-        RecordingReader,
-        SolutionJsonlWriter,
-        solutions,
-    )
+    from navd.io.recording import RecordingError, RecordingReader, SolutionJsonlWriter
 
     try:
         rec = RecordingReader(a.recording)
@@ -166,10 +151,7 @@ def _replay_recording(a: argparse.Namespace) -> int:
             tables = load_config(a.config, a.set)
         else:  # the daemon's own configuration, --set applied on top
             tables = apply_overrides(copy.deepcopy(rec.config), a.set)
-        # the daemon's construction (DOV model, polarization aid), so the replay matches
-        from navd.daemon import make_estimator
-
-        est = make_estimator(tables)
+        est = build_estimator(tables)
     except ConfigError as exc:
         print(f"navd replay: config error: {exc}", file=sys.stderr)
         return 2
@@ -237,12 +219,8 @@ def _aiding(path: str | None) -> contextlib.AbstractContextManager[AidingWriter 
 
 
 def _build(a: argparse.Namespace) -> Estimator:
-    """The estimator exactly as the daemon builds it (DOV grid, polarization aiding)."""
-    from navd.core.aiding.polarization import build_polarization
-    from navd.setup import build_estimator
-
-    tables = load_config(a.config, a.set)
-    return build_estimator(tables, pol=build_polarization(tables))
+    """The estimator exactly as the daemon builds it (:func:`navd.pipeline.build_estimator`)."""
+    return build_estimator(load_config(a.config, a.set))
 
 
 def _replay_log(a: argparse.Namespace) -> int:

@@ -30,26 +30,21 @@ import datetime
 import json
 import math
 import struct
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, BinaryIO, TextIO
+from typing import Any, BinaryIO, TextIO
 
 from navd import __version__
 from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample
 
-if TYPE_CHECKING:
-    from navd.core.estimator import Estimator
-
 __all__ = [
     "MAGIC",
-    "OutputSchedule",
     "RecordingError",
     "RecordingReader",
     "RecordingWriter",
     "SolutionJsonlWriter",
     "read_solutions_jsonl",
-    "solutions",
 ]
 
 MAGIC = b"NAVDREC1"
@@ -68,30 +63,6 @@ Sample = ImuSample | GnssSample | PolSample
 
 class RecordingError(ValueError):
     """The file is not a navd recording (or of an unknown format version)."""
-
-
-class OutputSchedule:
-    """When a sink gets a solution: the first advanced IMU sample at or past each multiple of
-    the output period, on the sensor clock.
-
-    Shared by the daemon and the recording replay so both emit at exactly the same pushes.
-    Sensor time, not the host clock, decides, so the output sequence is a function of the
-    input alone (and a faster-than-real-time stream still gets ``rate_hz`` per sensor second).
-    """
-
-    __slots__ = ("_next_us", "period_us")
-
-    def __init__(self, rate_hz: float) -> None:
-        if not rate_hz > 0.0:
-            raise ValueError(f"output rate must be > 0 Hz, got {rate_hz}")
-        self.period_us = max(1, round(1e6 / rate_hz))
-        self._next_us = -1
-
-    def due(self, t_us: int) -> bool:
-        if t_us < self._next_us:
-            return False
-        self._next_us = (t_us // self.period_us + 1) * self.period_us
-        return True
 
 
 class RecordingWriter:
@@ -215,15 +186,6 @@ class RecordingReader:
             else:
                 raise RecordingError(f"{self.path}: bad record type {kind!r} at byte {off}")
         self.truncated_bytes = end - off
-
-
-def solutions(est: Estimator, samples: Iterable[Sample], rate_hz: float
-              ) -> Iterator[NavSolution]:
-    """The daemon's output rule over a sample stream: what a sink at ``rate_hz`` received."""
-    sched = OutputSchedule(rate_hz)
-    for s in samples:
-        if est.push(s) and isinstance(s, ImuSample) and est.initialized and sched.due(s.t_us):
-            yield est.solution()
 
 
 @dataclass

@@ -19,7 +19,6 @@ segment (``--segment-s``, 30 s by default); they are also written to ``summary.j
 
 from __future__ import annotations
 
-import argparse
 import csv
 import html
 import json
@@ -33,9 +32,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from navd.units import DEG as D2R
+from navd.units import RAD2DEG as R2D
+
 F64 = npt.NDArray[np.float64]
-D2R = math.pi / 180.0
-R2D = 180.0 / math.pi
 AXES = ("roll", "pitch", "yaw")
 _BIG_BYTES = 5_000_000
 _MAX_PLOT_POINTS = 20_000
@@ -753,38 +753,3 @@ def build_report(solution: str | Path, out: str | Path, reference: str | Path | 
     }
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=True) + "\n")
     return summary
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="navd report", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--solution", required=True, help="solution CSV from navd replay")
-    ap.add_argument("--reference", help="reference attitude: CSV from --reference-out, or a "
-                                        "log (its onboard estimate)")
-    ap.add_argument("--aiding", help="aiding CSV from navd replay --aiding-out")
-    ap.add_argument("--log", help="the flight log replayed: its IMU for the gyro consistency "
-                                  "check (and its onboard attitude if no --reference)")
-    ap.add_argument("--out", required=True, help="output directory (index.html, *.png)")
-    ap.add_argument("--segment-s", type=float, default=30.0,
-                    help="segment length for the per-segment table, s (0: none)")
-    ap.add_argument("--stats-from-s", type=float, default=None,
-                    help="statistics and segments only from this log time on, s (e.g. after "
-                         "take-off); figures show everything")
-    ap.add_argument("--max-ref-gap-s", type=float, default=1.0,
-                    help="no error where the reference has a longer gap, s")
-    ap.add_argument("--title", help="page title")
-    ap.add_argument("--quiet", action="store_true", help="no progress bars")
-    a = ap.parse_args(argv)
-    try:
-        summary = build_report(a.solution, a.out, a.reference, a.aiding, a.segment_s,
-                               a.stats_from_s, a.max_ref_gap_s, a.title, progress=not a.quiet,
-                               log=a.log)
-    except (ReportError, OSError) as exc:
-        print(f"navd report: {exc}", file=sys.stderr)
-        return 2
-    print(f"navd report: {Path(a.out) / 'index.html'} ({len(summary['figures'])} figures)",
-          file=sys.stderr)
-    for axis, st in summary["stats_deg"].items():
-        print(f"  {axis:6s} RMS {st['rms']:7.2f}  p50 {st['p50']:7.2f}  p90 {st['p90']:7.2f}  "
-              f"p99 {st['p99']:7.2f}  max {st['max']:7.2f} deg", file=sys.stderr)
-    return 0

@@ -1,6 +1,4 @@
-"""``navd run``: sources -> bounded queue -> estimator task -> sinks, as a systemd service.
-
-    navd run [--config FILE] [--set section.key=value ...] [--record FILE]
+"""The daemon: sources -> bounded queue -> estimator task -> sinks, as a systemd service.
 
 One ``asyncio.TaskGroup`` holds four tasks:
 
@@ -18,39 +16,27 @@ heartbeat  MAVLink HEARTBEAT.
 Start: warm the estimator's JIT kernels, open sinks, open sources, READY=1.  Stop (SIGTERM,
 SIGINT): STOPPING=1, stop accepting input, let the estimator drain what is queued, close
 everything, log the final statistics, exit 0.  An unexpected error in any task ends the group
-and exits 1 (``Restart=on-failure``).  Configuration: :mod:`navd.daemon_config`.
+and exits 1 (``Restart=on-failure``).  Configuration: :mod:`navd.config.daemon`.
 """
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import dataclasses
-import importlib
 import json
 import logging
 import math
-import os
 import signal
-import sys
 import time
-from collections.abc import Callable, Coroutine, Sequence
-from typing import Any, cast
+from collections.abc import Sequence
+from typing import Any
 
-from navd import bias_store
-from navd.config import ConfigError, EstimatorConfig
+from navd.config import EstimatorConfig
+from navd.config.daemon import DaemonConfig
 from navd.core.aiding.dov import dov_status
-from navd.core.aiding.polarization import build_polarization
-from navd.core.estimator import Estimator
-from navd.daemon_config import DaemonConfig, load_daemon_config
-from navd.diag import RateLimitedLog
-from navd.io.dronecan import DronecanEncoder
-from navd.io.mavlink import MavlinkEncoder, MavlinkLink
-from navd.io.zenoh import ZenohPublisher
-from navd.record import RecordingWriter
-from navd.service import SdNotifier, watchdog_interval_s
-from navd.setup import build_estimator
-from navd.sinks import (
+from navd.daemon import bias_store
+from navd.daemon.service import SdNotifier, watchdog_interval_s
+from navd.daemon.sinks import (
     MAV_STATE_ACTIVE,
     MAV_STATE_CRITICAL,
     MAV_STATE_STANDBY,
@@ -59,10 +45,16 @@ from navd.sinks import (
     Sink,
     ZenohSink,
 )
-from navd.sources import SampleQueue, Sources
+from navd.daemon.sources import SampleQueue, Sources
+from navd.diag import RateLimitedLog
+from navd.io.dronecan import DronecanEncoder
+from navd.io.mavlink import MavlinkEncoder, MavlinkLink
+from navd.io.recording import RecordingWriter
+from navd.io.zenoh import ZenohPublisher
+from navd.pipeline import build_estimator, output_instant
 from navd.types import GnssSample, ImuSample, NavSolution
 
-__all__ = ["Daemon", "main", "warm_up"]
+__all__ = ["Daemon", "warm_up"]
 
 _log = logging.getLogger("navd")
 
@@ -82,12 +74,6 @@ def _is_refusal(counter: str) -> bool:
 _STALL_S = 1.0
 
 
-def make_estimator(tables: dict[str, Any]) -> Estimator:
-    """The estimator the config describes, with its optional DOV model and polarization aid
-    (the same construction ``navd replay --recording`` uses, so replays match)."""
-    return build_estimator(tables, pol=build_polarization(tables))
-
-
 def warm_up(tables: dict[str, Any]) -> float:
     """Drive a throwaway estimator through 4 s of synthetic straight driving; return seconds.
 
@@ -97,7 +83,7 @@ def warm_up(tables: dict[str, Any]) -> float:
     delayed-fix path is exercised too.
     """
     t0 = time.perf_counter()
-    est = make_estimator(tables)
+    est = build_estimator(tables)
     dt_us, speed, lat0, lon0, r_earth = 10_000, 10.0, 0.6, 1.9, 6.37e6
     for k in range(1, 401):
         t_us = k * dt_us
@@ -127,7 +113,7 @@ class Daemon:
             cfg = dataclasses.replace(cfg, tables=tables,
                                       estimator=EstimatorConfig.from_dict(tables))
         self.cfg = cfg
-        self.est = make_estimator(cfg.tables)  # raises ConfigError on a bad [dov]/[polarization]
+        self.est = build_estimator(cfg.tables)  # raises ConfigError on a bad [dov]/[polarization]
         self.notifier = notifier if notifier is not None else SdNotifier()
         self.rlog = RateLimitedLog(_log, cfg.daemon.warn_interval_s)
         self.queue = SampleQueue(cfg.daemon.queue_size, self.rlog)
@@ -279,11 +265,10 @@ class Daemon:
             recv_ns, s = item
             if rec is not None:
                 rec.write(s)
-            # Same rule as navd.record.solutions(), which replays a recording: keep in step.
-            if est.push(s) and isinstance(s, ImuSample) and est.initialized:
+            if output_instant(est, s):  # the one output rule (navd.pipeline)
                 sol: NavSolution | None = None
                 for sink in sinks:
-                    if sink.schedule.due(s.t_us):
+                    if sink.schedule.due(est.t_us):
                         if sol is None:
                             sol = est.solution()
                         self._publish(sink, sol, recv_ns)
@@ -423,67 +408,3 @@ class Daemon:
                 f"outputs={ {s.name: s.published for s in self.sinks} }")
 
 
-# -- command line -----------------------------------------------------------------------------
-
-_SYSLOG_PRIORITY = {logging.DEBUG: 7, logging.INFO: 6, logging.WARNING: 4, logging.ERROR: 3,
-                    logging.CRITICAL: 2}
-
-
-class _JournalFormatter(logging.Formatter):
-    """journald takes a leading ``<N>`` as the syslog priority and adds its own time stamp."""
-
-    def format(self, record: logging.LogRecord) -> str:
-        return f"<{_SYSLOG_PRIORITY.get(record.levelno, 6)}>{super().format(record)}"
-
-
-def setup_logging(level: str) -> None:
-    handler = logging.StreamHandler(sys.stderr)
-    if os.environ.get("JOURNAL_STREAM"):
-        handler.setFormatter(_JournalFormatter("%(name)s: %(message)s"))
-    else:
-        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
-    root = logging.getLogger()
-    root.handlers[:] = [handler]
-    root.setLevel(level.upper())
-    # zenoh's Rust side logs through Python logging at INFO per session event
-    logging.getLogger("zenoh").setLevel(logging.WARNING)
-
-
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="navd run", description=__doc__.splitlines()[0])
-    ap.add_argument("--config", help="TOML config (default: built-in defaults)")
-    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                    help="override a config value (repeatable), e.g. mavlink.sysid=2")
-    ap.add_argument("--record", metavar="FILE",
-                    help="write every pushed sample to FILE (replay: navd replay --recording)")
-    a = ap.parse_args(argv)
-    try:
-        cfg = load_daemon_config(a.config, a.set)
-        setup_logging(cfg.daemon.log_level)
-        daemon = Daemon(cfg, record_path=a.record or cfg.daemon.record or None)
-        run = _loop_runner(cfg.daemon.event_loop)
-    except ConfigError as exc:
-        print(f"navd run: config error: {exc}", file=sys.stderr)
-        return 2
-    return run(daemon.run())
-
-
-def _loop_runner(kind: str) -> Callable[[Coroutine[Any, Any, int]], int]:
-    """uvloop when available ("auto") or required: its event loop costs a fifth of CPython's
-    selector loop per datagram, which is most of the daemon's CPU at a 1 kHz IMU rate."""
-    if kind != "asyncio":
-        try:
-            uvloop = importlib.import_module("uvloop")
-        except ImportError:
-            if kind == "uvloop":
-                raise ConfigError('[daemon] event_loop = "uvloop" but uvloop is not '
-                                  "installed") from None
-        else:
-            _log.info("event loop: uvloop %s", uvloop.__version__)
-            return cast(Callable[[Coroutine[Any, Any, int]], int], uvloop.run)
-    _log.info("event loop: asyncio")
-    return asyncio.run
-
-
-if __name__ == "__main__":
-    sys.exit(main())

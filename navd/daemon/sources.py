@@ -19,7 +19,7 @@ import asyncio
 import logging
 import time
 
-from navd.daemon_config import DaemonConfig
+from navd.config.daemon import DaemonConfig
 from navd.diag import RateLimitedLog
 from navd.io.common import Sample
 from navd.io.dronecan import DronecanDecoder, DronecanLink
@@ -27,7 +27,7 @@ from navd.io.mavlink import MavlinkDecoder, MavlinkLink
 
 __all__ = ["ReceiveClock", "SampleQueue", "Sources"]
 
-_log = logging.getLogger("navd.sources")
+_log = logging.getLogger("navd.daemon.sources")
 
 QueueItem = tuple[int, Sample] | None  # (recv_t_ns, sample); None ends the stream
 

@@ -1,0 +1,1 @@
+"""Command-line entry points: argparse and ``main`` only; the work lives in the library."""

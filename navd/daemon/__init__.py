@@ -1,0 +1,1 @@
+"""The daemon: input sources, the estimator task, output sinks, learned biases, systemd."""

@@ -1,0 +1,1 @@
+"""Offline analysis: evaluation reports, aiding logs, the gravity model for DOV grids."""
