@@ -31,13 +31,14 @@ from navd.types import FixType, GnssSample, ImuSample, PolSample
 # -- config -----------------------------------------------------------------------------------
 
 
-def test_defaults_are_the_documented_ones() -> None:
+def test_built_in_defaults_stay_on_loopback() -> None:
+    """GIVEN no config file, WHEN the daemon's config is built from the built-in defaults,
+    THEN every socket it opens is on 127.0.0.1 and Zenoh does not scout multicast (a vehicle
+    must not expose attitude on a network nobody configured)."""
     c = DaemonConfig.from_dict({})
-    assert c.mavlink.listen == "udpin:127.0.0.1:14560"
-    assert c.mavlink.send == "udpout:127.0.0.1:14550"
-    assert c.mavlink.attitude_rate_hz == 50.0 and c.mavlink.heartbeat_period_s == 1.0
-    assert c.zenoh.listen == ("tcp/127.0.0.1:7447",) and c.zenoh.multicast_scouting is False
-    assert c.dronecan.enabled is False
+    urls = [c.mavlink.listen, c.mavlink.send, *c.zenoh.listen, *c.zenoh.connect]
+    assert urls and all("127.0.0.1" in u for u in urls), urls
+    assert c.zenoh.multicast_scouting is False
 
 
 def test_shipped_config_documents_every_daemon_key_with_the_defaults() -> None:
