@@ -14,14 +14,9 @@ from fixtures.logwriters import Source, source_from_sim, write_ulog, write_x8
 
 from navd.cli.replay import main as replay_main
 from navd.cli.report import main as report_main
-from navd.eval.report import (
-    RefSeries,
-    build_report,
-    course_check,
-    error_stats,
-    interpolate_reference,
-    wrap_deg,
-)
+from navd.eval.evaluate import course_check, error_stats, interpolate_reference, wrap_deg
+from navd.eval.report import build_report
+from navd.eval.tables import RefSeries
 
 
 class _Links(HTMLParser):

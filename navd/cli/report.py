@@ -10,7 +10,8 @@ import sys
 from pathlib import Path
 
 from navd.eval import report as _report
-from navd.eval.report import ReportError, build_report
+from navd.eval.report import build_report
+from navd.eval.tables import ReportError
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -120,17 +120,6 @@ class Reference:
                          self.source)
 
 
-def quat_to_euler(w: F64, x: F64, y: F64, z: F64) -> tuple[F64, F64, F64]:
-    """ZYX Euler angles (rad) of C_b^n from scalar-first quaternions (vectorised)."""
-    n = np.sqrt(w * w + x * x + y * y + z * z)
-    n = np.where(n > 0.0, n, 1.0)
-    w, x, y, z = w / n, x / n, y / n, z / n
-    roll = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-    pitch = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
-    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return roll, pitch, yaw
-
-
 class SampleBuilder:
     """Collects IMU and GNSS samples as rows; keeps each stream strictly time-ordered.
 

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from navd.core.quat_series import quat_to_euler
 from navd.io.logs.common import (
     F64,
     LogDamage,
@@ -42,7 +43,6 @@ from navd.io.logs.common import (
     LogOptions,
     Reference,
     SampleBuilder,
-    quat_to_euler,
 )
 from navd.types import FixType, GnssSample, ImuSample
 from navd.units import DEG
@@ -212,7 +212,7 @@ def _reference(d: dict[str, Any] | None) -> Reference:
         tsa = np.asarray(ts, dtype=np.int64)
         t = np.where(tsa > 0, tsa, t)
     q = [np.asarray(d[f"q[{i}]"], dtype=np.float64) for i in range(4)]
-    r, p, y = quat_to_euler(*q)
+    r, p, y = quat_to_euler(np.stack(q, 1)).T
     return Reference(t, r, p, y, "vehicle_attitude")
 
 
