@@ -1,0 +1,111 @@
+"""navd outputs -> MAVLink 2 frames (common.xml messages only).
+
+Outputs
+    ATTITUDE, ATTITUDE_QUATERNION (q1..q4 = w, x, y, z of C_b^n), HEARTBEAT
+    (MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID), GLOBAL_POSITION_INT (alt MSL mm =
+    ellipsoid height - ``geoid_sep_m``; hdg cdeg 0..35999).
+
+Only frame building lives here; when and where frames go is :class:`navd.io.mavlink.link.
+MavlinkSender`'s job, so the encoder can be tested and benchmarked without a socket.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from navd.types import NavSolution
+
+__all__ = ["MavlinkEncoder"]
+
+UINT16_MAX = 0xFFFF  # "unknown" in GLOBAL_POSITION_INT.hdg
+
+
+def _clamp_int(x: float, lo: int, hi: int) -> int:
+    if not math.isfinite(x):
+        raise ValueError(f"cannot put non-finite {x!r} into an integer field")
+    return max(lo, min(hi, round(x)))
+
+
+class MavlinkEncoder:
+    """Builds MAVLink 2 frames from navd outputs; owns the sequence counter of one source."""
+
+    def __init__(
+        self,
+        sysid: int = 1,
+        compid: int = mavlink.MAV_COMP_ID_ONBOARD_COMPUTER,
+        geoid_sep_m: float = 0.0,
+    ) -> None:
+        if not (1 <= sysid <= 255 and 1 <= compid <= 255):
+            raise ValueError(f"sysid/compid out of range: {sysid}/{compid}")
+        self._mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self.geoid_sep_m = geoid_sep_m
+
+    @property
+    def sysid(self) -> int:
+        return int(self._mav.srcSystem)
+
+    @property
+    def compid(self) -> int:
+        return int(self._mav.srcComponent)
+
+    def _pack(self, msg: Any) -> bytes:
+        buf: bytes = msg.pack(self._mav)
+        self._mav.seq = (self._mav.seq + 1) & 0xFF
+        return buf
+
+    def encode_attitude(self, sol: NavSolution, time_boot_ms: int) -> bytes:
+        p, q, r = sol.rate_b
+        return self._pack(
+            self._mav.attitude_encode(
+                time_boot_ms & 0xFFFFFFFF, sol.roll_rad, sol.pitch_rad, sol.yaw_rad, p, q, r
+            )
+        )
+
+    def encode_attitude_quaternion(self, sol: NavSolution, time_boot_ms: int) -> bytes:
+        w, x, y, z = sol.quat_nb
+        p, q, r = sol.rate_b
+        return self._pack(
+            self._mav.attitude_quaternion_encode(
+                time_boot_ms & 0xFFFFFFFF, w, x, y, z, p, q, r, (1.0, 0.0, 0.0, 0.0)
+            )
+        )
+
+    def encode_heartbeat(self, system_status: int = mavlink.MAV_STATE_ACTIVE) -> bytes:
+        return self._pack(
+            self._mav.heartbeat_encode(
+                mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
+                mavlink.MAV_AUTOPILOT_INVALID,
+                0,
+                0,
+                system_status,
+            )
+        )
+
+    def encode_global_position_int(
+        self, sol: NavSolution, time_boot_ms: int, home_alt_m: float | None = None
+    ) -> bytes:
+        """Raises ValueError if position or velocity is non-finite (integer fields)."""
+        alt_msl_m = sol.alt_m - self.geoid_sep_m
+        rel_m = alt_msl_m - home_alt_m if home_alt_m is not None else 0.0
+        hdg = UINT16_MAX
+        if math.isfinite(sol.yaw_rad):
+            hdg = round(math.degrees(sol.yaw_rad) * 100.0) % 36000
+        i32 = (-(2**31), 2**31 - 1)
+        i16 = (-(2**15), 2**15 - 1)
+        vn, ve, vd = sol.vel_n
+        return self._pack(
+            self._mav.global_position_int_encode(
+                time_boot_ms & 0xFFFFFFFF,
+                _clamp_int(math.degrees(sol.lat_rad) * 1e7, *i32),
+                _clamp_int(math.degrees(sol.lon_rad) * 1e7, *i32),
+                _clamp_int(alt_msl_m * 1e3, *i32),
+                _clamp_int(rel_m * 1e3, *i32),
+                _clamp_int(vn * 100.0, *i16),
+                _clamp_int(ve * 100.0, *i16),
+                _clamp_int(vd * 100.0, *i16),
+                hdg,
+            )
+        )

@@ -1,0 +1,407 @@
+"""MAVLink transports: asyncio UDP, TCP and serial links that feed a decoder and send frames.
+
+Addresses (pymavlink connection-string syntax)
+    ``udpin:HOST:PORT`` / ``udp:HOST:PORT`` listen (replies go to the last sender),
+    ``udpout:HOST:PORT`` send (and receive replies), ``tcp:HOST:PORT`` client,
+    ``/dev/ttyUSB0,921600`` serial (termios raw 8N1, no flow control; no pyserial needed).
+
+A stream link (TCP, serial) that closes is reopened with a growing delay; the decoder is
+reset first so a partial frame from the old connection cannot corrupt the new one.
+:class:`MavlinkSender` puts encoder output on a link (the daemon's MAVLink sink).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import socket
+import termios
+import tty
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any, cast
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from navd.diag import Counters
+from navd.io.common import Sample, SampleCallback, monotonic_us
+from navd.io.mavlink.decode import MavlinkDecoder
+from navd.io.mavlink.encode import MavlinkEncoder
+from navd.types import NavSolution
+
+__all__ = [
+    "LinkAddress",
+    "MavlinkLink",
+    "MavlinkSender",
+    "MavlinkStreamProtocol",
+    "MavlinkUdpProtocol",
+    "open_mavlink",
+    "parse_mavlink_url",
+]
+
+# The name the single-file adapter logged under; log configuration may select it.
+_log = logging.getLogger("navd.io.mavlink")
+
+
+@dataclass(frozen=True)
+class LinkAddress:
+    kind: str  # "udpin" | "udpout" | "tcp" | "serial"
+    host: str = ""
+    port: int = 0
+    device: str = ""
+    baud: int = 115200
+
+
+def parse_mavlink_url(url: str) -> LinkAddress:
+    """Parse pymavlink-style connection strings (see module docstring)."""
+    # pymavlink: a bare "udp:" listens, like "udpin:".
+    kinds = (("udpin:", "udpin"), ("udp:", "udpin"), ("udpout:", "udpout"), ("tcp:", "tcp"))
+    for prefix, kind in kinds:
+        if url.startswith(prefix):
+            host, sep, port = url[len(prefix) :].rpartition(":")
+            if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
+                raise ValueError(f"bad MAVLink address {url!r}: want {prefix}HOST:PORT")
+            return LinkAddress(kind, host=host, port=int(port))
+    if url.startswith("/"):
+        device, _, baud = url.partition(",")
+        if baud and not baud.isdigit():
+            raise ValueError(f"bad serial baud in {url!r}")
+        return LinkAddress("serial", device=device, baud=int(baud) if baud else 115200)
+    raise ValueError(f"unsupported MAVLink address {url!r}")
+
+
+class _Delivering:
+    """What both MAVLink protocols share: a decoder, a sample callback and a clock."""
+
+    def __init__(
+        self,
+        decoder: MavlinkDecoder | None,
+        on_sample: SampleCallback | None,
+        clock_us: Callable[[], int] = monotonic_us,
+    ) -> None:
+        self.decoder = decoder
+        self.on_sample = on_sample
+        self.clock_us = clock_us
+        self.counters = decoder.counters if decoder is not None else Counters()
+        self._init_link()
+
+    def _init_link(self) -> None:
+        """The transport-specific state."""
+
+    def _deliver(self, samples: Iterable[Sample]) -> None:
+        if self.on_sample is not None:
+            for s in samples:
+                self.on_sample(s)
+
+
+class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
+    """Decodes each datagram and hands samples to ``on_sample`` on the event loop."""
+
+    def _init_link(self) -> None:
+        self.transport: asyncio.DatagramTransport | None = None
+        self.last_peer: tuple[Any, ...] | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        # The selector loop's datagram transport does not subclass asyncio.DatagramTransport
+        # (CPython 3.11), so an isinstance check here would fail on every open.
+        self.transport = cast(asyncio.DatagramTransport, transport)
+
+    def datagram_received(self, data: bytes, addr: tuple[Any, ...]) -> None:
+        self.last_peer = addr
+        if self.decoder is not None:
+            self._deliver(self.decoder.feed_datagram(data, self.clock_us()))
+
+    def error_received(self, exc: Exception) -> None:
+        # ICMP port-unreachable on a connected udpout socket lands here; the link lives on.
+        self.counters.inc("link_error")
+        _log.debug("MAVLink UDP error: %s", exc)
+
+
+class MavlinkStreamProtocol(_Delivering, asyncio.Protocol):
+    """Byte-stream twin of :class:`MavlinkUdpProtocol` for TCP and serial."""
+
+    def _init_link(self) -> None:
+        self.closed: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+
+    def data_received(self, data: bytes) -> None:
+        if self.decoder is not None:
+            self._deliver(self.decoder.feed(data, self.clock_us()))
+
+    def eof_received(self) -> bool | None:
+        return None
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if exc is not None:
+            self.counters.inc("link_error")
+            _log.warning("MAVLink stream closed: %s", exc)
+        if not self.closed.done():
+            self.closed.set_result(None)
+
+
+class _WriteOnlyProtocol(asyncio.BaseProtocol):
+    pass
+
+
+_SERIAL_SPEEDS = {
+    b: getattr(termios, f"B{b}")
+    for b in (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 921600, 1000000,
+              1500000, 2000000, 3000000)
+    if hasattr(termios, f"B{b}")
+}
+
+
+def _configure_serial(fd: int, baud: int) -> None:
+    """Raw 8N1, no flow control, no modem control: a plain telemetry UART."""
+    speed = _SERIAL_SPEEDS.get(baud)
+    if speed is None:
+        raise ValueError(f"unsupported baud rate {baud}; choose one of {sorted(_SERIAL_SPEEDS)}")
+    tty.setraw(fd)
+    attrs = termios.tcgetattr(fd)
+    attrs[2] = (attrs[2] & ~(termios.CSIZE | termios.PARENB | termios.CSTOPB | termios.CRTSCTS)) | (
+        termios.CS8 | termios.CLOCAL | termios.CREAD
+    )
+    attrs[4] = speed
+    attrs[5] = speed
+    termios.tcsetattr(fd, termios.TCSANOW, attrs)
+    termios.tcflush(fd, termios.TCIOFLUSH)
+
+
+class MavlinkLink:
+    """One open MAVLink link: decodes what arrives, writes what is sent, never blocks.
+
+    Open with :meth:`open`.  ``send`` queues bytes on the transport; when a stream's write
+    buffer exceeds ``max_tx_buffer`` (stuck UART, slow TCP peer) frames are dropped and
+    counted rather than letting memory grow.
+    """
+
+    def __init__(self, address: LinkAddress, counters: Counters, max_tx_buffer: int) -> None:
+        self.address = address
+        self.counters = counters
+        self.max_tx_buffer = max_tx_buffer
+        self._udp: MavlinkUdpProtocol | None = None
+        self._udp_transport: asyncio.DatagramTransport | None = None
+        self._rx_transport: asyncio.BaseTransport | None = None
+        self._tx_transport: asyncio.WriteTransport | None = None
+        self._decoder: MavlinkDecoder | None = None
+        self._on_sample: SampleCallback | None = None
+        self._clock_us: Callable[[], int] = monotonic_us
+        self._closing = False
+        self._watch: asyncio.Task[None] | None = None
+        self.reconnect_delays_s: tuple[float, ...] = (0.5, 1.0, 2.0, 5.0)
+
+    @classmethod
+    async def open(
+        cls,
+        url: str,
+        decoder: MavlinkDecoder | None = None,
+        on_sample: SampleCallback | None = None,
+        *,
+        clock_us: Callable[[], int] = monotonic_us,
+        max_tx_buffer: int = 64 * 1024,
+    ) -> MavlinkLink:
+        addr = parse_mavlink_url(url)
+        loop = asyncio.get_running_loop()
+        counters = decoder.counters if decoder is not None else Counters()
+        link = cls(addr, counters, max_tx_buffer)
+        if addr.kind in ("udpin", "udpout"):
+            proto = MavlinkUdpProtocol(decoder, on_sample, clock_us)
+            kw: dict[str, Any] = (
+                {"local_addr": (addr.host, addr.port)}
+                if addr.kind == "udpin"
+                else {"remote_addr": (addr.host, addr.port)}
+            )
+            transport, _ = await loop.create_datagram_endpoint(lambda: proto, **kw)
+            link._udp = proto
+            link._udp_transport = transport
+        else:
+            link._decoder, link._on_sample, link._clock_us = decoder, on_sample, clock_us
+            sproto = await link._open_stream()
+            link._watch = loop.create_task(link._keep_open(sproto), name=f"mavlink {url}")
+        return link
+
+    async def _open_stream(self) -> MavlinkStreamProtocol:
+        """Connect a TCP or serial link; the transports replace any previous ones."""
+        addr = self.address
+        loop = asyncio.get_running_loop()
+        sproto = MavlinkStreamProtocol(self._decoder, self._on_sample, self._clock_us)
+        if addr.kind == "tcp":
+            transport2, _ = await loop.create_connection(lambda: sproto, addr.host, addr.port)
+            self._rx_transport = transport2
+            self._tx_transport = transport2
+            return sproto
+        fd = os.open(addr.device, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        try:
+            _configure_serial(fd, addr.baud)
+            wfd = os.dup(fd)
+        except BaseException:
+            os.close(fd)
+            raise
+        # Two file objects on one tty: asyncio's pipe transports each own (and close)
+        # their descriptor.
+        rpipe = os.fdopen(fd, "rb", buffering=0)
+        wpipe = os.fdopen(wfd, "wb", buffering=0)
+        try:
+            rt, _ = await loop.connect_read_pipe(lambda: sproto, rpipe)
+            wt, _ = await loop.connect_write_pipe(_WriteOnlyProtocol, wpipe)
+        except BaseException:
+            rpipe.close()
+            wpipe.close()
+            raise
+        self._rx_transport = rt
+        self._tx_transport = wt
+        return sproto
+
+    async def _keep_open(self, proto: MavlinkStreamProtocol) -> None:
+        """A TCP peer that restarts or a USB serial adapter that drops out must not need a
+        daemon restart: when the stream closes, reopen it with a growing delay (capped),
+        forgetting any partial frame, until :meth:`close`."""
+        where = self.address.device or f"{self.address.host}:{self.address.port}"
+        while not self._closing:
+            await asyncio.shield(proto.closed)
+            if self._closing:
+                return
+            for t in (self._rx_transport, self._tx_transport):
+                if t is not None and not t.is_closing():
+                    t.close()
+            self.counters.inc("link_lost")
+            _log.warning("MAVLink %s %s closed; reopening", self.address.kind, where)
+            attempt = 0
+            while not self._closing:
+                delay = self.reconnect_delays_s[min(attempt, len(self.reconnect_delays_s) - 1)]
+                await asyncio.sleep(delay)
+                if self._closing:
+                    return
+                try:
+                    if self._decoder is not None:
+                        self._decoder.reset()
+                    proto = await self._open_stream()
+                except (OSError, ValueError) as exc:
+                    attempt += 1
+                    if attempt == 1 or attempt % 20 == 0:  # rate-limited: one line per ~100 s
+                        _log.warning("MAVLink %s %s: reopen failed (%d attempts): %s",
+                                     self.address.kind, where, attempt, exc)
+                    continue
+                self.counters.inc("link_reopened")
+                _log.info("MAVLink %s %s reopened", self.address.kind, where)
+                break
+
+    @property
+    def peer(self) -> tuple[Any, ...] | None:
+        """Where ``send`` goes on a listening UDP link (the last sender), else None."""
+        return self._udp.last_peer if self._udp is not None else None
+
+    @property
+    def local_address(self) -> tuple[Any, ...] | None:
+        t = self._udp_transport or self._rx_transport
+        if t is None:
+            return None
+        sockname: tuple[Any, ...] | None = t.get_extra_info("sockname")
+        return sockname
+
+    def set_receive_buffer(self, nbytes: int) -> int:
+        """Ask for an ``nbytes`` socket receive buffer on a UDP link (the kernel caps it at
+        net.core.rmem_max); return what the kernel granted, 0 for other links."""
+        if self._udp_transport is None:
+            return 0
+        sock = self._udp_transport.get_extra_info("socket")
+        if sock is None:
+            return 0
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, nbytes)
+        return int(sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF))
+
+    def send(self, data: bytes) -> bool:
+        """Queue ``data``; False (and counted) if it could not be sent now."""
+        if self._udp_transport is not None:
+            if self._udp_transport.is_closing():
+                self.counters.inc("tx_closed")
+                return False
+            if self.address.kind == "udpout":
+                self._udp_transport.sendto(data)
+                return True
+            peer = self.peer
+            if peer is None:
+                # pymavlink udpin semantics: nobody to talk to until someone talks to us.
+                self.counters.inc("tx_no_peer")
+                return False
+            self._udp_transport.sendto(data, peer)
+            return True
+        t = self._tx_transport
+        if t is None or t.is_closing():
+            self.counters.inc("tx_closed")
+            return False
+        if t.get_write_buffer_size() > self.max_tx_buffer:
+            self.counters.inc("tx_dropped")
+            return False
+        t.write(data)
+        return True
+
+    def close(self) -> None:
+        self._closing = True
+        if self._watch is not None and not self._watch.done():
+            self._watch.cancel()
+        for t in (self._udp_transport, self._rx_transport, self._tx_transport):
+            if t is not None and not t.is_closing():
+                t.close()
+
+
+async def open_mavlink(
+    url: str,
+    decoder: MavlinkDecoder | None = None,
+    on_sample: SampleCallback | None = None,
+    **kw: Any,
+) -> MavlinkLink:
+    """Open a pymavlink-style connection string; see :meth:`MavlinkLink.open`."""
+    return await MavlinkLink.open(url, decoder, on_sample, **kw)
+
+
+class MavlinkSender:
+    """The daemon's MAVLink sink: solution -> ATTITUDE (+ QUATERNION, GLOBAL_POSITION_INT).
+
+    ``time_boot_ms`` of every output is the solution's ``t_us`` in ms, i.e. the sensor time
+    of validity, so a consumer can match attitude to the IMU stream it came from.
+    """
+
+    def __init__(
+        self,
+        link: MavlinkLink,
+        encoder: MavlinkEncoder,
+        *,
+        send_quaternion: bool = True,
+        send_global_position: bool = False,
+        home_alt_m: float | None = None,
+    ) -> None:
+        self.link = link
+        self.encoder = encoder
+        self.send_quaternion = send_quaternion
+        self.send_global_position = send_global_position
+        self.home_alt_m = home_alt_m
+
+    def send(self, data: bytes) -> bool:
+        return self.link.send(data)
+
+    def send_solution(self, sol: NavSolution) -> None:
+        ms = sol.t_us // 1000
+        self.send(self.encoder.encode_attitude(sol, ms))
+        if self.send_quaternion:
+            self.send(self.encoder.encode_attitude_quaternion(sol, ms))
+        if self.send_global_position:
+            try:
+                self.send(self.encoder.encode_global_position_int(sol, ms, self.home_alt_m))
+            except ValueError:
+                self.link.counters.inc("tx_nonfinite_position")
+
+    def send_heartbeat(self, system_status: int = mavlink.MAV_STATE_ACTIVE) -> bool:
+        return self.send(self.encoder.encode_heartbeat(system_status))
+
+    async def run_heartbeat(
+        self,
+        period_s: float = 1.0,
+        status: Callable[[], int] = lambda: mavlink.MAV_STATE_ACTIVE,
+    ) -> None:
+        """Send HEARTBEAT every ``period_s`` until cancelled."""
+        while True:
+            with contextlib.suppress(OSError):
+                self.send_heartbeat(status())
+            await asyncio.sleep(period_s)
