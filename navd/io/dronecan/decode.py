@@ -1,25 +1,11 @@
-"""DroneCAN (UAVCAN v0) adapter over python-can: CAN frames <-> navd.types.
+"""DroneCAN transfers -> navd samples: the adapter's settings, data type tables and decoder.
 
-The ``dronecan`` package supplies the DSDL types and the transfer codec
-(``transport.Transfer``: payload bits, multi-frame split, transfer CRC seeded with the data
-type signature).  Its driver and node are not used: frames come from python-can, and
-reassembly is done here, frame by frame, as libcanard does it:
-
-* only 29-bit message frames from a non-anonymous node of an accepted data type are
-  considered (service, anonymous, 11-bit, remote, error and FD frames are counted and
-  dropped);
-* a transfer session is (source node, data type ID); a start-of-transfer frame (re)starts
-  it; later frames must carry the same transfer ID and the alternating toggle bit (a frame
-  with the wrong toggle is dropped, not the session, so a duplicated frame is harmless);
-  every frame but the last must be full (8 bytes);
-* the transfer CRC (first two payload bytes of a multi-frame transfer) is checked; a lost
-  middle frame shows up as a toggle error and/or a CRC mismatch;
-* RawIMU, the 1 kHz message, and navd's SkyPolarization are unpacked here (byte-aligned
-  little-endian fields; CRC-16-CCITT seeded with the CRC of the type signature): 18 us per
-  RawIMU from the first frame to the sample, against 211 us through the codec
-  (benchmarks/decode.py).  Fix2 (bit-packed, 10 Hz) still goes through the codec.  Tests
-  check the two against each other;
-* a session with no end after ``transfer_timeout_s`` (100 ms) is evicted and counted.
+Frames are reassembled into transfers by :mod:`navd.io.dronecan.transfer`; this module
+checks the transfer CRC and decodes the payload.  Fix2 (bit-packed, 10 Hz) goes through
+the ``dronecan`` codec.  RawIMU, the 1 kHz message, and navd's SkyPolarization are
+unpacked here (byte-aligned little-endian fields; CRC-16-CCITT seeded with the CRC of the
+type signature): 18 us per RawIMU from the first frame to the sample, against 211 us
+through the codec (benchmarks/decode.py).  Tests check the two against each other.
 
 Inputs
     uavcan.equipment.ahrs.RawIMU (1003): if ``integration_interval`` > 0, the integrals
@@ -41,17 +27,13 @@ Inputs
     polarization reading (docs/polarization.md) -> PolSample; GPS time -> UTC.
 Output
     uavcan.equipment.ahrs.Solution (1000): quaternion in x, y, z, w order (navd is w, x, y, z),
-    float16; attitude 1-sigma as a diagonal roll/pitch/yaw covariance (rad²).
 """
 
 from __future__ import annotations
 
-import asyncio
 import binascii
-import logging
 import math
 import struct
-from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -65,14 +47,14 @@ from navd.io.common import (
     RateIntegrator,
     Rejector,
     Sample,
-    SampleCallback,
     all_finite,
     gnss_reject_reason,
     imu_reject_reason,
     monotonic_us,
 )
+from navd.io.dronecan.transfer import TransferReassembler, payload_len
 from navd.io.pol_wire import reading_to_sample
-from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample
+from navd.types import FixType, GnssSample, ImuSample, PolSample
 from navd.units import DEG
 
 __all__ = [
@@ -80,15 +62,13 @@ __all__ = [
     "POL_DTID",
     "POL_SIGNATURE",
     "RAW_IMU_DTID",
-    "SOLUTION_DTID",
     "DronecanConfig",
     "DronecanDecoder",
-    "DronecanEncoder",
-    "DronecanLink",
-    "open_bus",
+    "RawImuFields",
 ]
 
-_log = logging.getLogger(__name__)
+# The name the single-file adapter logged under; log configuration may select it.
+_LOGGER = "navd.io.dronecan"
 
 RAW_IMU_DTID = 1003
 FIX2_DTID = 1063
@@ -96,11 +76,9 @@ FIX2_DTID = 1063
 # message range 20000-21799); its DSDL signature, recomputed from the .uavcan file in tests
 POL_DTID = 20440
 POL_SIGNATURE = 0x53EF5B29B1B13DDF
-SOLUTION_DTID = 1000
 
 _RAW_IMU = dronecan.TYPENAMES["uavcan.equipment.ahrs.RawIMU"]
 _FIX2 = dronecan.TYPENAMES["uavcan.equipment.gnss.Fix2"]
-_SOLUTION = dronecan.TYPENAMES["uavcan.equipment.ahrs.Solution"]
 _MIN_PAYLOAD = {
     RAW_IMU_DTID: (_RAW_IMU.get_min_bitlen() + 7) // 8,
     FIX2_DTID: (_FIX2.get_min_bitlen() + 7) // 8,
@@ -117,7 +95,6 @@ _RAW_IMU_CRC0 = int(_RAW_IMU.base_crc)
 _POL_BODY = struct.Struct("<QffB")
 _POL_CRC0 = binascii.crc_hqx(struct.pack("<Q", POL_SIGNATURE), 0xFFFF)
 _OWN_UNPACK = {RAW_IMU_DTID: _RAW_IMU_CRC0, POL_DTID: _POL_CRC0}
-_MAX_TRANSFER_BYTES = 512  # larger than any accepted type; caps memory per session
 
 
 @dataclass(frozen=True)
@@ -174,16 +151,6 @@ def _unpack_raw_imu(body: bytes) -> RawImuFields:
                         v[10:13])
 
 
-class _Session:
-    __slots__ = ("frames", "nbytes", "next_toggle", "start_us", "tid")
-
-    def __init__(self, tid: int, start_us: int) -> None:
-        self.tid = tid
-        self.start_us = start_us
-        self.next_toggle = 0
-        self.nbytes = 0
-        self.frames: list[bytes] = []
-
 
 def _fix_type(mode: int, sub_mode: int) -> FixType:
     if mode == 1:
@@ -205,35 +172,32 @@ class DronecanDecoder:
         log: RateLimitedLog | None = None,
     ) -> None:
         self.config = config if config is not None else DronecanConfig()
-        self._reject = Rejector.create(__name__, "dronecan", counters, log)
+        self._reject = Rejector.create(_LOGGER, "dronecan", counters, log)
         self.counters = self._reject.counters
         cfg = self.config
         nominal = (
             round(1e6 / cfg.nominal_imu_rate_hz) if cfg.nominal_imu_rate_hz is not None else None
         )
         self._imu = RateIntegrator(self._reject, nominal, round(cfg.max_imu_gap_s * 1e6))
-        self._timeout_us = round(cfg.transfer_timeout_s * 1e6)
-        self._sessions: dict[tuple[int, int], _Session] = {}
+        self._transfers = TransferReassembler(
+            self._reject, _MIN_PAYLOAD, cfg.allow_nodes, round(cfg.transfer_timeout_s * 1e6)
+        )
         self._last_fix_t_us: dict[int, int] = {}
         self._last_pol_t_us: dict[int, int] = {}
 
     @property
     def pending(self) -> int:
         """Partial transfers being reassembled."""
-        return len(self._sessions)
+        return self._transfers.pending
 
     def evict_stale(self, now_us: int) -> int:
-        stale = [k for k, s in self._sessions.items() if now_us - s.start_us > self._timeout_us]
-        for k in stale:
-            del self._sessions[k]
-            self._reject("stale_transfer", "node %d dtid %d: no end within timeout", *k)
-        return len(stale)
+        return self._transfers.evict_stale(now_us)
 
     def feed(self, msg: can.Message, recv_t_us: int | None = None) -> list[Sample]:
         """Take one CAN frame; return the sample(s) a completed transfer produced."""
         now = recv_t_us if recv_t_us is not None else monotonic_us()
-        if self._sessions:
-            self.evict_stale(now)
+        if self._transfers.pending:
+            self._transfers.evict_stale(now)
         try:
             payload = self._reassemble(msg, now)
             if payload is None:
@@ -249,89 +213,13 @@ class DronecanDecoder:
         return [sample]
 
     def _reassemble(self, msg: can.Message, now: int) -> tuple[int, int, int, Any] | None:
-        if msg.is_error_frame or msg.is_remote_frame:
-            self.counters.inc("bad_frame_kind")
+        """(source node, data type ID, receive time of the first frame, payload) once a
+        transfer is complete and its CRC checks, else None (the reason counted)."""
+        got = self._transfers.push(msg, now)
+        if got is None:
             return None
-        if not msg.is_extended_id:
-            self.counters.inc("not_extended")
-            return None
-        if msg.is_fd:
-            self._reject("fd_unsupported", "CAN FD frame id=0x%08x", msg.arbitration_id)
-            return None
-        data = bytes(msg.data[: msg.dlc])
-        if not data:
-            self._reject("bad_frame_len", "empty frame id=0x%08x", msg.arbitration_id)
-            return None
-        cid: int = msg.arbitration_id
-        if cid & 0x80:
-            self.counters.inc("service_ignored")
-            return None
-        src = cid & 0x7F
-        if src == 0:
-            self.counters.inc("anonymous_ignored")
-            return None
-        dtid = (cid >> 8) & 0xFFFF
-        if dtid not in _MIN_PAYLOAD:
-            self.counters.inc("ignored")
-            return None
-        if self.config.allow_nodes is not None and src not in self.config.allow_nodes:
-            self._reject("not_allowed", "node %d", src)
-            return None
-
-        tail = data[-1]
-        sot, eot, toggle, tid = bool(tail & 0x80), bool(tail & 0x40), (tail >> 5) & 1, tail & 0x1F
-        key = (src, dtid)
-        frame = data
-        if sot:
-            if key in self._sessions:
-                self._reject("transfer_restarted", "node %d dtid %d: new start before end", *key)
-                del self._sessions[key]
-            if toggle != 0:
-                self._reject("bad_toggle", "node %d dtid %d: start frame with toggle set", *key)
-                return None
-            if eot:
-                single = self._complete(cid, [frame], dtid)
-                return (src, dtid, now, single) if single is not None else None
-            if len(data) != 8:
-                self._reject("bad_frame_len", "node %d dtid %d: short non-final frame", *key)
-                return None
-            sess = _Session(tid, now)
-            sess.frames.append(frame)
-            sess.nbytes = len(data) - 1
-            sess.next_toggle = 1
-            self._sessions[key] = sess
-            return None
-
-        sess_opt = self._sessions.get(key)
-        if sess_opt is None:
-            self._reject("orphan_frame", "node %d dtid %d: continuation without start", *key)
-            return None
-        sess = sess_opt
-        if tid != sess.tid:
-            self._reject("bad_transfer_id", "node %d dtid %d: tid %d during %d",
-                         src, dtid, tid, sess.tid)
-            return None
-        if toggle != sess.next_toggle:
-            self._reject("bad_toggle", "node %d dtid %d: toggle %d, expected %d",
-                         src, dtid, toggle, sess.next_toggle)
-            return None
-        if not eot and len(data) != 8:
-            self._reject("bad_frame_len", "node %d dtid %d: short non-final frame", *key)
-            del self._sessions[key]
-            return None
-        sess.frames.append(frame)
-        sess.nbytes += len(data) - 1
-        sess.next_toggle ^= 1
-        if sess.nbytes > _MAX_TRANSFER_BYTES:
-            self._reject("oversize_transfer", "node %d dtid %d: > %d bytes",
-                         src, dtid, _MAX_TRANSFER_BYTES)
-            del self._sessions[key]
-            return None
-        if not eot:
-            return None
-        del self._sessions[key]
-        payload = self._complete(cid, sess.frames, dtid)
-        return (src, dtid, sess.start_us, payload) if payload is not None else None
+        payload = self._complete(got.can_id, got.frames, got.dtid)
+        return (got.src, got.dtid, got.start_us, payload) if payload is not None else None
 
     def _complete(self, cid: int, frames: list[bytes], dtid: int) -> Any:
         """Payload of a reassembled transfer (toggles and transfer IDs already checked), or
@@ -358,7 +246,7 @@ class DronecanDecoder:
         return t.payload if self._long_enough(dtid, frames) else None
 
     def _long_enough(self, dtid: int, frames: list[bytes]) -> bool:
-        n = _payload_len(frames)
+        n = payload_len(frames)
         if n < _MIN_PAYLOAD[dtid]:
             self._reject("short_payload", "dtid %d: %d bytes < %d", dtid, n, _MIN_PAYLOAD[dtid])
             return False
@@ -514,127 +402,3 @@ class DronecanDecoder:
             pos_ecef_m=pos_ecef,
             vel_ecef_mps=vel_ecef,
         )
-
-
-def _payload_len(frames: list[bytes]) -> int:
-    n = sum(len(f) - 1 for f in frames)
-    return n - 2 if len(frames) > 1 else n  # multi-frame transfers start with the CRC
-
-
-def transfer_messages(
-    payload: Any, node_id: int, transfer_id: int, priority: int
-) -> list[can.Message]:
-    """Serialise one message transfer into classic-CAN frames (tail bytes, CRC)."""
-    t = transport.Transfer(
-        transfer_id=transfer_id & 0x1F,
-        source_node_id=node_id,
-        payload=payload,
-        transfer_priority=priority,
-    )
-    return [
-        can.Message(arbitration_id=f.message_id, data=bytes(f.bytes), is_extended_id=True)
-        for f in t.to_frames()
-    ]
-
-
-class DronecanEncoder:
-    """navd outputs -> DroneCAN frames; one transfer-ID counter per data type, as required."""
-
-    def __init__(self, node_id: int = 100, priority: int = 16) -> None:
-        if not 1 <= node_id <= 127:
-            raise ValueError(f"node_id must be 1..127, got {node_id}")
-        self.node_id = node_id
-        self.priority = priority
-        self._tid: dict[int, int] = {}
-
-    def _next_tid(self, dtid: int) -> int:
-        tid = self._tid.get(dtid, 0)
-        self._tid[dtid] = (tid + 1) & 0x1F
-        return tid
-
-    def encode_solution(self, sol: NavSolution) -> list[can.Message]:
-        w, x, y, z = sol.quat_nb
-        m = dronecan.uavcan.equipment.ahrs.Solution()
-        m.timestamp.usec = max(0, sol.t_us)
-        m.orientation_xyzw = [x, y, z, w]
-        m.orientation_covariance = [
-            sol.att_sd_rad[0] ** 2, 0.0, 0.0,
-            0.0, sol.att_sd_rad[1] ** 2, 0.0,
-            0.0, 0.0, sol.att_sd_rad[2] ** 2,
-        ]
-        m.angular_velocity = list(sol.rate_b)
-        # navd does not estimate linear acceleration; NaN says "not provided".
-        m.linear_acceleration = [math.nan, math.nan, math.nan]
-        return transfer_messages(m, self.node_id, self._next_tid(SOLUTION_DTID), self.priority)
-
-
-def open_bus(config: DronecanConfig,
-             dtids: Iterable[int] = (RAW_IMU_DTID, FIX2_DTID, POL_DTID)) -> Any:
-    """Open the python-can bus named in config (SocketCAN needs no privileges to use)."""
-    filters = None
-    if config.kernel_filters:
-        # Message frames: data type ID in bits 8..23, service flag (bit 7) clear.
-        filters = [{"can_id": d << 8, "can_mask": 0xFFFF80, "extended": True} for d in dtids]
-    return can.Bus(interface=config.interface, channel=config.channel, can_filters=filters)
-
-
-class DronecanLink(can.Listener):
-    """A bus, a python-can Notifier calling back on the asyncio loop, and a decoder."""
-
-    def __init__(
-        self,
-        bus: Any,
-        decoder: DronecanDecoder,
-        on_sample: SampleCallback | None,
-        clock_us: Callable[[], int] = monotonic_us,
-    ) -> None:
-        self.bus = bus
-        self.decoder = decoder
-        self.on_sample = on_sample
-        self.clock_us = clock_us
-        self.counters = decoder.counters
-        self._notifier: Any = None
-
-    @classmethod
-    async def open(
-        cls,
-        config: DronecanConfig,
-        decoder: DronecanDecoder | None = None,
-        on_sample: SampleCallback | None = None,
-        *,
-        clock_us: Callable[[], int] = monotonic_us,
-    ) -> DronecanLink:
-        dec = decoder if decoder is not None else DronecanDecoder(config)
-        bus = open_bus(config)
-        link = cls(bus, dec, on_sample, clock_us)
-        # With a loop, the Notifier delivers on the loop thread (add_reader for SocketCAN,
-        # call_soon_threadsafe from its reader thread otherwise), so decoding and the
-        # callback never race the estimator task.
-        link._notifier = can.Notifier(bus, [link], loop=asyncio.get_running_loop())
-        return link
-
-    def on_message_received(self, msg: can.Message) -> None:
-        for s in self.decoder.feed(msg, self.clock_us()):
-            if self.on_sample is not None:
-                self.on_sample(s)
-
-    def on_error(self, exc: Exception) -> None:
-        self.counters.inc("bus_error")
-        _log.warning("CAN bus error: %s", exc)
-
-    def send(self, msgs: list[can.Message]) -> bool:
-        """Send all frames of a transfer without blocking; False (counted) if the bus refused."""
-        for m in msgs:
-            try:
-                self.bus.send(m, timeout=0.0)
-            except can.CanError as exc:
-                self.counters.inc("tx_dropped")
-                _log.debug("CAN send failed: %s", exc)
-                return False
-        return True
-
-    def close(self) -> None:
-        if self._notifier is not None:
-            self._notifier.stop()
-            self._notifier = None
-        self.bus.shutdown()
