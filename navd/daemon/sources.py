@@ -1,5 +1,11 @@
 """The daemon's inputs: adapter links feeding one bounded queue in front of the estimator.
 
+Each input kind is a small adapter behind one interface (:class:`Input`: ``open(queue)
+-> description``, ``counters()``, ``close()``, and the ``link`` a sink may share), listed
+in :data:`INPUT_KINDS` under the name its counters appear as in the status (``inputs``).
+:class:`Sources` opens the kinds the configuration enables, in that order; adding a
+transport is one adapter class and one registry entry, not another branch here.
+
 Adapters call back on the event loop with decoded samples; each sample is queued together
 with the host receive time (``time.monotonic_ns``) of the datagram or CAN frame it came in,
 so the daemon can measure receive -> output latency.  The estimator only ever sees the
@@ -18,14 +24,24 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from typing import ClassVar, Protocol
 
 from navd.config.daemon import DaemonConfig
 from navd.diag import RateLimitedLog
-from navd.io.common import Sample
+from navd.io.common import Sample, SampleCallback
 from navd.io.dronecan import DronecanDecoder, DronecanLink
 from navd.io.mavlink import MavlinkDecoder, MavlinkLink
 
-__all__ = ["ReceiveClock", "SampleQueue", "Sources"]
+__all__ = [
+    "INPUT_KINDS",
+    "DronecanInput",
+    "Input",
+    "InputKind",
+    "MavlinkInput",
+    "ReceiveClock",
+    "SampleQueue",
+    "Sources",
+]
 
 _log = logging.getLogger("navd.daemon.sources")
 
@@ -90,72 +106,170 @@ class SampleQueue:
         return self._q.qsize()
 
 
+def _queueing(queue: SampleQueue) -> tuple[ReceiveClock, SampleCallback]:
+    """A link's clock and sample callback: each sample is queued with the receive time of
+    the datagram or frame it was decoded from."""
+    clock = ReceiveClock()
+
+    def on_sample(s: Sample) -> None:
+        queue.put(clock.last_ns, s)
+
+    return clock, on_sample
+
+
+class Input(Protocol):
+    """One input kind: opens its link onto the queue, reports its decoder's counters."""
+
+    kind: ClassVar[str]  # key under ``inputs`` in the status
+
+    @staticmethod
+    def wanted(cfg: DaemonConfig) -> bool:
+        """Whether the configuration enables this input."""
+        ...
+
+    async def open(self, queue: SampleQueue) -> str:
+        """Open the link feeding ``queue``; return a description for the start-up log."""
+        ...
+
+    def counters(self) -> dict[str, int] | None:
+        """The decoder's counters; None before :meth:`open` has made a decoder."""
+        ...
+
+    def close(self) -> None:
+        """Close the link (also the send side of a link a sink shares)."""
+        ...
+
+
+class MavlinkInput:
+    """``[mavlink] listen``: a MAVLink link whose send side a sink may share (send = "same")."""
+
+    kind: ClassVar[str] = "mavlink"
+
+    def __init__(self, cfg: DaemonConfig) -> None:
+        self.cfg = cfg
+        self.decoder: MavlinkDecoder | None = None
+        self.link: MavlinkLink | None = None
+
+    @staticmethod
+    def wanted(cfg: DaemonConfig) -> bool:
+        return bool(cfg.mavlink.enabled and cfg.mavlink.listen)
+
+    async def open(self, queue: SampleQueue) -> str:
+        m = self.cfg.mavlink
+        clock, on_sample = _queueing(queue)
+        self.decoder = MavlinkDecoder(m.input_config())
+        self.link = await MavlinkLink.open(m.listen, self.decoder, on_sample, clock_us=clock)
+        rx = self.cfg.daemon.rx_buffer_bytes
+        if rx:
+            # The default (~200 kB, ~270 small datagrams) overflows during a short
+            # stall of the loop at kHz input rates; the kernel counts, nobody else.
+            got = self.link.set_receive_buffer(rx)
+            if got and got < rx:
+                _log.info("UDP receive buffer %d bytes (asked %d; net.core.rmem_max "
+                          "limits it)", got, rx)
+        return f"mavlink {m.listen}"
+
+    def counters(self) -> dict[str, int] | None:
+        return self.decoder.counters.snapshot() if self.decoder is not None else None
+
+    def close(self) -> None:
+        # The link object stays: a sink sharing it may still ask for its counters.
+        if self.link is not None:
+            self.link.close()
+
+
+class DronecanInput:
+    """``[dronecan]``: a python-can bus; the DroneCAN sink sends on the same bus."""
+
+    kind: ClassVar[str] = "dronecan"
+
+    def __init__(self, cfg: DaemonConfig) -> None:
+        self.cfg = cfg
+        self.decoder: DronecanDecoder | None = None
+        self.link: DronecanLink | None = None
+
+    @staticmethod
+    def wanted(cfg: DaemonConfig) -> bool:
+        return bool(cfg.dronecan.enabled)
+
+    async def open(self, queue: SampleQueue) -> str:
+        d = self.cfg.dronecan
+        clock, on_sample = _queueing(queue)
+        bus_cfg = d.bus_config()
+        self.decoder = DronecanDecoder(bus_cfg)
+        self.link = await DronecanLink.open(bus_cfg, self.decoder, on_sample, clock_us=clock)
+        return f"dronecan {d.interface}:{d.channel}"
+
+    def counters(self) -> dict[str, int] | None:
+        return self.decoder.counters.snapshot() if self.decoder is not None else None
+
+    def close(self) -> None:
+        # Shutting a python-can bus down twice is not safe on every interface: forget it.
+        if self.link is not None:
+            self.link.close()
+            self.link = None
+
+
+class InputKind(Protocol):
+    """What the registry holds: an :class:`Input` class (its name, its config test, and the
+    constructor taking the daemon configuration)."""
+
+    @property
+    def kind(self) -> str: ...
+
+    def wanted(self, cfg: DaemonConfig) -> bool: ...
+
+    def __call__(self, cfg: DaemonConfig) -> Input: ...
+
+
+# The input kinds the daemon knows, opened (and closed) in this order.
+INPUT_KINDS: tuple[InputKind, ...] = (MavlinkInput, DronecanInput)
+
+
 class Sources:
-    """Opens the configured input links; all of them feed :class:`SampleQueue`."""
+    """Opens the configured input kinds; all of them feed :class:`SampleQueue`."""
 
     def __init__(self, cfg: DaemonConfig, queue: SampleQueue) -> None:
         self.cfg = cfg
         self.queue = queue
-        self.mavlink: MavlinkLink | None = None
-        self.mavlink_decoder: MavlinkDecoder | None = None
-        self.dronecan: DronecanLink | None = None
-        self.dronecan_decoder: DronecanDecoder | None = None
+        self.inputs: dict[str, Input] = {}
 
     async def open(self) -> list[str]:
         """Open every configured input; return descriptions.  Raises OSError & co. on failure
         (after closing what was already open)."""
         opened: list[str] = []
         try:
-            m = self.cfg.mavlink
-            if m.enabled and m.listen:
-                clock = ReceiveClock()
-                queue = self.queue
-                self.mavlink_decoder = MavlinkDecoder(m.input_config())
-
-                def on_mavlink(s: Sample) -> None:
-                    queue.put(clock.last_ns, s)
-
-                self.mavlink = await MavlinkLink.open(m.listen, self.mavlink_decoder,
-                                                      on_mavlink, clock_us=clock)
-                rx = self.cfg.daemon.rx_buffer_bytes
-                if rx:
-                    # The default (~200 kB, ~270 small datagrams) overflows during a short
-                    # stall of the loop at kHz input rates; the kernel counts, nobody else.
-                    got = self.mavlink.set_receive_buffer(rx)
-                    if got and got < rx:
-                        _log.info("UDP receive buffer %d bytes (asked %d; net.core.rmem_max "
-                                  "limits it)", got, rx)
-                opened.append(f"mavlink {m.listen}")
-            d = self.cfg.dronecan
-            if d.enabled:
-                dclock = ReceiveClock()
-                dqueue = self.queue
-                bus_cfg = d.bus_config()
-                self.dronecan_decoder = DronecanDecoder(bus_cfg)
-
-                def on_dronecan(s: Sample) -> None:
-                    dqueue.put(dclock.last_ns, s)
-
-                self.dronecan = await DronecanLink.open(bus_cfg, self.dronecan_decoder,
-                                                        on_dronecan, clock_us=dclock)
-                opened.append(f"dronecan {d.interface}:{d.channel}")
+            for kind in INPUT_KINDS:
+                if kind.wanted(self.cfg):
+                    inp = kind(self.cfg)
+                    self.inputs[kind.kind] = inp
+                    opened.append(await inp.open(self.queue))
         except BaseException:
             self.close()
             raise
         return opened
 
+    @property
+    def mavlink(self) -> MavlinkLink | None:
+        """The MAVLink input link, for a sink that sends on it (send = "same")."""
+        inp = self.inputs.get(MavlinkInput.kind)
+        return inp.link if isinstance(inp, MavlinkInput) else None
+
+    @property
+    def dronecan(self) -> DronecanLink | None:
+        """The DroneCAN input bus, for the Solution sink."""
+        inp = self.inputs.get(DronecanInput.kind)
+        return inp.link if isinstance(inp, DronecanInput) else None
+
     def counters(self) -> dict[str, dict[str, int]]:
         out: dict[str, dict[str, int]] = {}
-        if self.mavlink_decoder is not None:
-            out["mavlink"] = self.mavlink_decoder.counters.snapshot()
-        if self.dronecan_decoder is not None:
-            out["dronecan"] = self.dronecan_decoder.counters.snapshot()
+        for name, inp in self.inputs.items():
+            c = inp.counters()
+            if c is not None:
+                out[name] = c
         return out
 
     def close(self) -> None:
         """Close every link (also the send side of a link a sink shares)."""
-        if self.mavlink is not None:
-            self.mavlink.close()
-        if self.dronecan is not None:
-            self.dronecan.close()
-            self.dronecan = None
+        for inp in self.inputs.values():
+            inp.close()
