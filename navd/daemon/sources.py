@@ -24,7 +24,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from typing import ClassVar, Protocol
+from typing import ClassVar, Generic, Protocol, TypeVar
 
 from navd.config.daemon import DaemonConfig
 from navd.diag import RateLimitedLog
@@ -106,6 +106,10 @@ class SampleQueue:
         return self._q.qsize()
 
 
+DecoderT = TypeVar("DecoderT", MavlinkDecoder, DronecanDecoder)
+LinkT = TypeVar("LinkT", MavlinkLink, DronecanLink)
+
+
 def _queueing(queue: SampleQueue) -> tuple[ReceiveClock, SampleCallback]:
     """A link's clock and sample callback: each sample is queued with the receive time of
     the datagram or frame it was decoded from."""
@@ -121,6 +125,11 @@ class Input(Protocol):
     """One input kind: opens its link onto the queue, reports its decoder's counters."""
 
     kind: ClassVar[str]  # key under ``inputs`` in the status
+
+    @property
+    def link(self) -> object:
+        """The open link (None before open): a sink may send on it, see Sources.mavlink."""
+        ...
 
     @staticmethod
     def wanted(cfg: DaemonConfig) -> bool:
@@ -140,15 +149,23 @@ class Input(Protocol):
         ...
 
 
-class MavlinkInput:
-    """``[mavlink] listen``: a MAVLink link whose send side a sink may share (send = "same")."""
-
-    kind: ClassVar[str] = "mavlink"
+class _DecodingInput(Generic[DecoderT, LinkT]):
+    """What the input kinds share: the daemon config, a decoder and a link, both made by
+    ``open``; counters are the decoder's."""
 
     def __init__(self, cfg: DaemonConfig) -> None:
         self.cfg = cfg
-        self.decoder: MavlinkDecoder | None = None
-        self.link: MavlinkLink | None = None
+        self.decoder: DecoderT | None = None
+        self.link: LinkT | None = None
+
+    def counters(self) -> dict[str, int] | None:
+        return self.decoder.counters.snapshot() if self.decoder is not None else None
+
+
+class MavlinkInput(_DecodingInput[MavlinkDecoder, MavlinkLink]):
+    """``[mavlink] listen``: a MAVLink link whose send side a sink may share (send = "same")."""
+
+    kind: ClassVar[str] = "mavlink"
 
     @staticmethod
     def wanted(cfg: DaemonConfig) -> bool:
@@ -169,24 +186,16 @@ class MavlinkInput:
                           "limits it)", got, rx)
         return f"mavlink {m.listen}"
 
-    def counters(self) -> dict[str, int] | None:
-        return self.decoder.counters.snapshot() if self.decoder is not None else None
-
     def close(self) -> None:
         # The link object stays: a sink sharing it may still ask for its counters.
         if self.link is not None:
             self.link.close()
 
 
-class DronecanInput:
+class DronecanInput(_DecodingInput[DronecanDecoder, DronecanLink]):
     """``[dronecan]``: a python-can bus; the DroneCAN sink sends on the same bus."""
 
     kind: ClassVar[str] = "dronecan"
-
-    def __init__(self, cfg: DaemonConfig) -> None:
-        self.cfg = cfg
-        self.decoder: DronecanDecoder | None = None
-        self.link: DronecanLink | None = None
 
     @staticmethod
     def wanted(cfg: DaemonConfig) -> bool:
@@ -199,9 +208,6 @@ class DronecanInput:
         self.decoder = DronecanDecoder(bus_cfg)
         self.link = await DronecanLink.open(bus_cfg, self.decoder, on_sample, clock_us=clock)
         return f"dronecan {d.interface}:{d.channel}"
-
-    def counters(self) -> dict[str, int] | None:
-        return self.decoder.counters.snapshot() if self.decoder is not None else None
 
     def close(self) -> None:
         # Shutting a python-can bus down twice is not safe on every interface: forget it.

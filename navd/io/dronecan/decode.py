@@ -42,10 +42,9 @@ import dronecan
 from dronecan import transport
 
 from navd.diag import Counters, RateLimitedLog
+from navd.io.adapter import DecoderBase
 from navd.io.common import (
     Limits,
-    RateIntegrator,
-    Rejector,
     Sample,
     all_finite,
     gnss_reject_reason,
@@ -162,8 +161,10 @@ def _fix_type(mode: int, sub_mode: int) -> FixType:
     return FixType.FIX_3D
 
 
-class DronecanDecoder:
+class DronecanDecoder(DecoderBase[DronecanConfig]):
     """Frame-by-frame reassembly and decoding; never raises on bus input."""
+
+    no_timestamp_detail = "timestamp.usec is 0 (no time sync); set use_receive_time"
 
     def __init__(
         self,
@@ -171,14 +172,9 @@ class DronecanDecoder:
         counters: Counters | None = None,
         log: RateLimitedLog | None = None,
     ) -> None:
-        self.config = config if config is not None else DronecanConfig()
-        self._reject = Rejector.create(_LOGGER, "dronecan", counters, log)
-        self.counters = self._reject.counters
+        super().__init__(config if config is not None else DronecanConfig(), "dronecan",
+                         _LOGGER, counters, log)
         cfg = self.config
-        nominal = (
-            round(1e6 / cfg.nominal_imu_rate_hz) if cfg.nominal_imu_rate_hz is not None else None
-        )
-        self._imu = RateIntegrator(self._reject, nominal, round(cfg.max_imu_gap_s * 1e6))
         self._transfers = TransferReassembler(
             self._reject, _MIN_PAYLOAD, cfg.allow_nodes, round(cfg.transfer_timeout_s * 1e6)
         )
@@ -280,15 +276,6 @@ class DronecanDecoder:
             return None
         self._last_pol_t_us[src] = out.t_us
         return out
-
-    def _stamp(self, usec: int, recv_t_us: int, what: str) -> int | None:
-        if self.config.use_receive_time:
-            return recv_t_us
-        if usec <= 0:
-            self._reject(f"{what}_no_timestamp", "timestamp.usec is 0 (no time sync); "
-                         "set use_receive_time")
-            return None
-        return usec
 
     def _raw_imu(self, src: int, recv_t_us: int, p: RawImuFields) -> ImuSample | None:
         t_us = self._stamp(p.usec, recv_t_us, "imu")

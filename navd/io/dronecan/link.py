@@ -16,6 +16,7 @@ from typing import Any
 
 import can
 
+from navd.io.adapter import SampleDelivery
 from navd.io.common import SampleCallback, monotonic_us
 from navd.io.dronecan.decode import (
     FIX2_DTID,
@@ -41,7 +42,7 @@ def open_bus(config: DronecanConfig,
     return can.Bus(interface=config.interface, channel=config.channel, can_filters=filters)
 
 
-class DronecanLink(can.Listener):
+class DronecanLink(SampleDelivery[DronecanDecoder], can.Listener):
     """A bus, a python-can Notifier calling back on the asyncio loop, and a decoder."""
 
     def __init__(
@@ -52,10 +53,9 @@ class DronecanLink(can.Listener):
         clock_us: Callable[[], int] = monotonic_us,
     ) -> None:
         self.bus = bus
-        self.decoder = decoder
-        self.on_sample = on_sample
-        self.clock_us = clock_us
-        self.counters = decoder.counters
+        super().__init__(decoder, on_sample, clock_us)
+
+    def _init_link(self) -> None:
         self._notifier: Any = None
 
     @classmethod
@@ -77,9 +77,8 @@ class DronecanLink(can.Listener):
         return link
 
     def on_message_received(self, msg: can.Message) -> None:
-        for s in self.decoder.feed(msg, self.clock_us()):
-            if self.on_sample is not None:
-                self.on_sample(s)
+        if self.decoder is not None:  # always set: open() makes one if none is given
+            self._deliver(self.decoder.feed(msg, self.clock_us()))
 
     def on_error(self, exc: Exception) -> None:
         self.counters.inc("bus_error")

@@ -41,10 +41,9 @@ from typing import Any, Literal
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from navd.diag import Counters, RateLimitedLog
+from navd.io.adapter import DecoderBase
 from navd.io.common import (
     Limits,
-    RateIntegrator,
-    Rejector,
     Sample,
     all_finite,
     gnss_reject_reason,
@@ -122,6 +121,11 @@ class MavlinkInputConfig:
             raise ValueError("max_imu_gap_s must be > 0")
 
 
+def _dop(dop_x100: int) -> float | None:
+    """GPS_RAW_INT / HIL_GPS ``eph``/``epv``: DOP x 100, UINT16_MAX when unknown."""
+    return dop_x100 * 1e-2 if dop_x100 != UINT16_MAX else None
+
+
 class _MsUnwrapper:
     """Extends uint32 millisecond stamps past their wrap so t_us stays monotonic."""
 
@@ -140,7 +144,7 @@ class _MsUnwrapper:
         return (ms + offset) * 1000
 
 
-class MavlinkDecoder:
+class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
     """Non-blocking MAVLink parser producing navd samples; never raises on wire input.
 
     ``feed`` treats input as a byte stream (serial, TCP): a frame may span calls.
@@ -154,15 +158,10 @@ class MavlinkDecoder:
         counters: Counters | None = None,
         log: RateLimitedLog | None = None,
     ) -> None:
-        self.config = config if config is not None else MavlinkInputConfig()
-        self._reject = Rejector.create(_LOGGER, "mavlink", counters, log)
-        self.counters = self._reject.counters
-        self._mav = self._new_parser()
+        super().__init__(config if config is not None else MavlinkInputConfig(), "mavlink",
+                         _LOGGER, counters, log)
         cfg = self.config
-        nominal = (
-            round(1e6 / cfg.nominal_imu_rate_hz) if cfg.nominal_imu_rate_hz is not None else None
-        )
-        self._imu = RateIntegrator(self._reject, nominal, round(cfg.max_imu_gap_s * 1e6))
+        self._mav = self._new_parser()
         self._ms = _MsUnwrapper()
         self._last_seq: dict[tuple[int, int], int] = {}
         self._last_gnss_t_us: dict[tuple[int, int, int], int] = {}
@@ -329,14 +328,6 @@ class MavlinkDecoder:
 
     # -- helpers ------------------------------------------------------------------------------
 
-    def _stamp(self, sensor_t_us: int, recv_t_us: int, what: str) -> int | None:
-        if self.config.use_receive_time:
-            return recv_t_us
-        if sensor_t_us <= 0:
-            self._reject(f"{what}_no_timestamp", "sensor time is zero; set use_receive_time")
-            return None
-        return sensor_t_us
-
     def _imu_sample(
         self,
         key: tuple[int, int, int, int],
@@ -355,16 +346,16 @@ class MavlinkDecoder:
         return self._imu.push(key, t_us, gyro, accel)
 
     def _imu_id_ok(self, imu_id: int) -> bool:
-        want = self.config.imu_id
-        if want is not None and imu_id != want:
-            self.counters.inc("imu_other_instance")
-            return False
-        return True
+        return self._instance_ok(self.config.imu_id, imu_id, "imu_other_instance")
 
     def _gnss_id_ok(self, gps_id: int) -> bool:
-        want = self.config.gnss_id
-        if want is not None and gps_id != want:
-            self.counters.inc("gnss_other_instance")
+        return self._instance_ok(self.config.gnss_id, gps_id, "gnss_other_instance")
+
+    def _instance_ok(self, want: int | None, got: int, counter: str) -> bool:
+        """Whether a message is from the configured sensor instance (None: any); another
+        instance is counted, not rejected: it is expected on a multi-sensor vehicle."""
+        if want is not None and got != want:
+            self.counters.inc(counter)
             return False
         return True
 
@@ -436,14 +427,7 @@ class MavlinkDecoder:
             return None
         key = (m.get_srcSystem(), m.get_srcComponent(), msgid, instance)
         t_us = self._stamp(self._ms.us(key[:3], m.time_boot_ms), recv_t_us, "imu")
-        g = 1e-3  # mrad/s -> rad/s
-        a = G0_MPS2 * 1e-3  # mG -> m/s^2
-        return self._imu_sample(
-            key,
-            t_us,
-            (m.xgyro * g, m.ygyro * g, m.zgyro * g),
-            (m.xacc * a, m.yacc * a, m.zacc * a),
-        )
+        return self._scaled_sample(m, key, t_us, 1e-3, G0_MPS2 * 1e-3)  # mrad/s, mG
 
     def _on_scaled_imu(self, m: Any, recv_t_us: int) -> ImuSample | None:
         return self._scaled(m, recv_t_us, mavlink.MAVLINK_MSG_ID_SCALED_IMU, 0)
@@ -464,6 +448,13 @@ class MavlinkDecoder:
             return None
         t_us = self._stamp(m.time_usec, recv_t_us, "imu")
         key = (m.get_srcSystem(), m.get_srcComponent(), mavlink.MAVLINK_MSG_ID_RAW_IMU, m.id)
+        return self._scaled_sample(m, key, t_us, g, a)
+
+    def _scaled_sample(
+        self, m: Any, key: tuple[int, int, int, int], t_us: int | None, g: float, a: float
+    ) -> ImuSample | None:
+        """Integer x/y/z gyro and accel fields times their scales (rad/s and m/s^2 per
+        unit): what SCALED_IMU* and RAW_IMU share."""
         return self._imu_sample(
             key,
             t_us,
@@ -488,8 +479,7 @@ class MavlinkDecoder:
             vel = (speed * math.cos(cog), speed * math.sin(cog), math.nan)
         else:
             vel = (math.nan, math.nan, math.nan)
-        eph = m.eph * 1e-2 if m.eph != UINT16_MAX else None
-        epv = m.epv * 1e-2 if m.epv != UINT16_MAX else None
+        eph, epv = _dop(m.eph), _dop(m.epv)
         return self._gnss_sample(
             t_us,
             m.fix_type,
@@ -559,8 +549,7 @@ class MavlinkDecoder:
             return None
         cfg = self.config
         t_us = self._stamp(m.time_usec, recv_t_us, "gnss")
-        eph = m.eph * 1e-2 if m.eph != UINT16_MAX else None
-        epv = m.epv * 1e-2 if m.epv != UINT16_MAX else None
+        eph, epv = _dop(m.eph), _dop(m.epv)
         return self._gnss_sample(
             t_us,
             m.fix_type,

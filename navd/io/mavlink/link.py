@@ -19,14 +19,15 @@ import os
 import socket
 import termios
 import tty
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, cast
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from navd.diag import Counters
-from navd.io.common import Sample, SampleCallback, monotonic_us
+from navd.io.adapter import SampleDelivery
+from navd.io.common import SampleCallback, monotonic_us
 from navd.io.mavlink.decode import MavlinkDecoder
 from navd.io.mavlink.encode import MavlinkEncoder
 from navd.types import NavSolution
@@ -72,28 +73,8 @@ def parse_mavlink_url(url: str) -> LinkAddress:
     raise ValueError(f"unsupported MAVLink address {url!r}")
 
 
-class _Delivering:
-    """What both MAVLink protocols share: a decoder, a sample callback and a clock."""
-
-    def __init__(
-        self,
-        decoder: MavlinkDecoder | None,
-        on_sample: SampleCallback | None,
-        clock_us: Callable[[], int] = monotonic_us,
-    ) -> None:
-        self.decoder = decoder
-        self.on_sample = on_sample
-        self.clock_us = clock_us
-        self.counters = decoder.counters if decoder is not None else Counters()
-        self._init_link()
-
-    def _init_link(self) -> None:
-        """The transport-specific state."""
-
-    def _deliver(self, samples: Iterable[Sample]) -> None:
-        if self.on_sample is not None:
-            for s in samples:
-                self.on_sample(s)
+class _Delivering(SampleDelivery[MavlinkDecoder]):
+    """What both MAVLink protocols share."""
 
 
 class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
