@@ -56,12 +56,12 @@ from firmware_sim.polarization import PolMavlinkEncoder
 from firmware_sim.run import SimRun, generate
 from firmware_sim.scenario import load_scenario
 from firmware_sim.score import matched_imu_config
-from navd.config import EstimatorConfig, load_config
+from navd.config import EstimatorConfig, PolarizationSection, build_section, load_config
+from navd.config.daemon import BiasStoreSection
 from navd.core.aiding.polarization import PolarizationAiding
 from navd.core.estimator import Estimator
 from navd.core.rotation import log_so3, mat_to_euler
 from navd.daemon import bias_store
-from navd.daemon.bias_store import BiasStoreSection
 from navd.io.pol_wire import decode
 from navd.types import ImuSample, PolSample
 from navd.units import RAD2DEG as R2D
@@ -119,18 +119,20 @@ def _learn(case: dict[str, Any]) -> tuple[dict[str, Any], str]:
     sc = load_scenario("pol_moving", {"duration_s": case["learn_s"], **_scenario_overrides(case)})
     run = generate(sc, seed=case["seed"])
     tables = load_config(None, matched_imu_config(sc.imu))
-    est = Estimator(EstimatorConfig.from_dict(tables))
+    cfg = EstimatorConfig.from_dict(tables)
+    est = Estimator(cfg)
     for smp in run.samples():
         if not isinstance(smp, PolSample):
             est.push(smp)
-    store = BiasStoreSection(path="", max_gyro_sd_deg_per_h=1e9, max_accel_sd_mg=1e9)
+    store = build_section(BiasStoreSection, "bias_store",
+                          {"max_gyro_sd_deg_per_h": 1e9, "max_accel_sd_mg": 1e9})
     rec = bias_store.snapshot(est, store, 0.0)
     if rec is None:
         raise RuntimeError("the drive did not start navigating")
     with tempfile.TemporaryDirectory() as d:
         path = os.path.join(d, "imu_bias.json")
         bias_store.save(path, rec)
-        out, state = bias_store.apply(tables, replace(store, path=path), 0.0)
+        out, state = bias_store.apply(tables, replace(store, path=path), cfg.imu, 0.0)
     if not state.startswith("loaded"):
         raise RuntimeError(state)
     return out, state
@@ -158,9 +160,9 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
         tables["imu"] = base["imu"]
     cfg = EstimatorConfig.from_dict(tables)
     ps = sc.polarization
-    aid = PolarizationAiding.from_config({
+    aid = PolarizationAiding(build_section(PolarizationSection, "polarization", {
         "mount_roll_deg": ps.mount_roll_deg, "mount_pitch_deg": ps.mount_pitch_deg,
-        "mount_yaw_deg": ps.mount_yaw_deg}) if pol_on else None
+        "mount_yaw_deg": ps.mount_yaw_deg})) if pol_on else None
     est = Estimator(cfg, pol=aid)
     out = _score(run, est, case["wire"])
     geo = run.pol

@@ -6,13 +6,14 @@ their estimator with :func:`build_estimator` and decide when a solution is outpu
 :func:`output_instant` and :class:`OutputSchedule`, so a replay of a recording reproduces the
 daemon's outputs sample for sample.
 
-``build_estimator(tables)`` takes the TOML tables of :func:`navd.config.load_config`: it
-validates the estimator sections (:class:`EstimatorConfig`), ``[dov]`` and ``[polarization]``,
-and loads the DOV grid.  A grid that cannot be used (missing file, NaN cells, unsorted axes,
-wrong shapes, unknown units) never stops navd: it is refused with a warning naming the file
-and the cause, the estimator runs on normal gravity, and the status record says so
-(``dov_model = "refused: ...; normal gravity"`` from :func:`navd.core.aiding.dov.dov_status`).
-Config *syntax* errors (unknown key, wrong type) raise :class:`ConfigError`.
+``build_estimator(config)`` takes a :class:`navd.config.aiding.NavConfig` (the estimator
+sections, ``[polarization]`` and ``[dov]``, typed and validated once), or the TOML tables of
+:func:`navd.config.load_config` it is built from, and loads the DOV grid.  A grid that
+cannot be used (missing file, NaN cells, unsorted axes, wrong shapes, unknown units) never
+stops navd: it is refused with a warning naming the file and the cause, the estimator runs
+on normal gravity, and the status record says so (``dov_model = "refused: ...; normal
+gravity"`` from :func:`navd.core.aiding.dov.dov_status`).  Config *syntax* errors (unknown
+key, wrong type) raise :class:`ConfigError`.
 
 The output rule: a solution may be output right after the push of an IMU sample while the
 estimator navigates; a sink at rate ``f`` takes the first such instant at or past each
@@ -23,14 +24,14 @@ sequence is a function of the input alone.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from typing import TYPE_CHECKING, Any
 
-from navd.config import EstimatorConfig
+from navd.config.aiding import DovSection, NavConfig
 from navd.core.aiding.dov import DovGridError, note_refused
 from navd.core.aiding.polarization import build_polarization
 from navd.core.estimator import DovField, Estimator, Sample
-from navd.io.dov_grid import DovSettings, load_from_settings
+from navd.io.dov_grid import load_from_settings
 from navd.types import GnssSample, ImuSample, NavSolution
 
 if TYPE_CHECKING:
@@ -41,10 +42,9 @@ __all__ = ["OutputSchedule", "build_estimator", "output_instant", "solutions"]
 log = logging.getLogger("navd.dov")
 
 
-def dov_field_from_config(tables: dict[str, Any]) -> tuple[DovField | None, str | None]:
+def dov_field_from_config(s: DovSection) -> tuple[DovField | None, str | None]:
     """(field, None) when ``[dov]`` is enabled and its grid loads; (None, None) when DOV is
-    off; (None, reason) when the grid was refused.  Raises ConfigError on a bad [dov] table."""
-    s = DovSettings.from_table(tables.get("dov", {}))
+    off; (None, reason) when the grid was refused."""
     if not s.enabled:
         return None, None
     try:
@@ -53,16 +53,18 @@ def dov_field_from_config(tables: dict[str, Any]) -> tuple[DovField | None, str 
         return None, str(exc)
 
 
-def build_estimator(tables: dict[str, Any]) -> Estimator:
-    """The estimator the config tables describe, with its DOV model and polarization aid.
+def build_estimator(config: NavConfig | Mapping[str, Any]) -> Estimator:
+    """The estimator a :class:`NavConfig` (or the config tables it is built from) describes,
+    with its DOV model and polarization aid.
 
     Raises:
-        ConfigError: a malformed estimator, ``[dov]`` or ``[polarization]`` section.
+        ConfigError: (tables only) a malformed estimator, ``[dov]`` or ``[polarization]``
+            section.
     """
-    cfg = EstimatorConfig.from_dict(tables)
-    pol = build_polarization(tables)
-    field, refused = dov_field_from_config(tables)
-    est = Estimator(cfg, dov_field=field, pol=pol)
+    cfg = config if isinstance(config, NavConfig) else NavConfig.from_tables(config)
+    pol = build_polarization(cfg.polarization)
+    field, refused = dov_field_from_config(cfg.dov)
+    est = Estimator(cfg.estimator, dov_field=field, pol=pol)
     if refused is not None:
         note_refused(est, refused)
         log.warning("DOV grid refused, running on normal gravity: %s", refused)

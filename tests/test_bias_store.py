@@ -14,16 +14,25 @@ import numpy as np
 import pytest
 from daemon_util import car_run
 
-from navd.config import EstimatorConfig, load_config
-from navd.config.daemon import DaemonConfig
+from navd.config import EstimatorConfig, build_section, load_config
+from navd.config.daemon import BiasStoreSection, DaemonConfig
 from navd.core.estimator import Estimator
 from navd.daemon import bias_store
-from navd.daemon.bias_store import BiasStoreSection
 from navd.daemon.daemon import Daemon
 from navd.daemon.service import SdNotifier
 from navd.io.recording import RecordingReader
 
 NOW = 1.8e9  # 2027-01-15
+
+
+def _store(**keys: Any) -> BiasStoreSection:
+    """A [bias_store] section from TOML keys (units in the names)."""
+    return build_section(BiasStoreSection, "bias_store", keys)
+
+
+def _apply(tables: dict[str, Any], s: BiasStoreSection, now: float
+           ) -> tuple[dict[str, Any], str]:
+    return bias_store.apply(tables, s, EstimatorConfig.from_dict(tables).imu, now)
 
 
 @cache
@@ -53,21 +62,21 @@ def _write(path: Path, rec: Any) -> Path:
 def test_snapshot_saves_what_the_drive_learned_and_the_next_start_uses_it(tmp_path: Path
                                                                            ) -> None:
     est, run = learned()
-    strict = BiasStoreSection(path=str(tmp_path / "b.json"), max_accel_sd_mg=0.01)
+    strict = _store(path=str(tmp_path / "b.json"), max_accel_sd_mg=0.01)
     assert bias_store.snapshot(est, strict, NOW) is None  # not yet known that well
-    s = BiasStoreSection(path=str(tmp_path / "b.json"), max_accel_sd_mg=10.0,
+    s = _store(path=str(tmp_path / "b.json"), max_accel_sd_mg=10.0,
                          max_gyro_sd_deg_per_h=20.0)
     rec = bias_store.snapshot(est, s, NOW)
     assert rec is not None
     bias_store.save(s.path, rec)
     assert [p.name for p in tmp_path.iterdir()] == ["b.json"]  # no temporary left behind
-    tables, state = bias_store.apply({}, s, NOW + 60.0)
+    tables, state = _apply({}, s, NOW + 60.0)
     assert state.startswith("loaded"), state
     cfg = EstimatorConfig.from_dict(tables)
     assert np.allclose(cfg.imu.accel_bias, est.bias_a) and np.allclose(cfg.imu.gyro_bias,
                                                                        est.bias_g)
     # the prior is the learned 1-sigma combined with the turn-on repeatability
-    a_sd = math.hypot(max(rec["accel_bias_sd_mg"]), s.repeat_accel_sd_mg)
+    a_sd = math.hypot(max(rec["accel_bias_sd_mg"]), s.repeat_accel_sd / 9.80665e-3)
     assert cfg.imu.accel_bias_sd == pytest.approx(a_sd * 9.80665e-3)
     # and what was learned is closer to the truth than the zero a fresh start assumes
     assert (np.linalg.norm(cfg.imu.gyro_bias - run.gyro_bias_rps)
@@ -75,9 +84,9 @@ def test_snapshot_saves_what_the_drive_learned_and_the_next_start_uses_it(tmp_pa
 
 
 def test_a_loaded_file_never_raises_the_configured_prior(tmp_path: Path) -> None:
-    s = BiasStoreSection(path=str(_write(tmp_path / "b.json", _record(
+    s = _store(path=str(_write(tmp_path / "b.json", _record(
         accel_bias_sd_mg=[3.0, 3.0, 3.0]))))
-    tables, state = bias_store.apply({"imu": {"accel_bias_sd_mg": 1.0}}, s, NOW)
+    tables, state = _apply({"imu": {"accel_bias_sd_mg": 1.0}}, s, NOW)
     assert state.startswith("loaded")
     assert tables["imu"]["accel_bias_sd_mg"] == 1.0
     assert tables["imu"]["accel_bias_mg"] == [1.5, -0.5, 2.0]
@@ -98,16 +107,16 @@ def test_a_loaded_file_never_raises_the_configured_prior(tmp_path: Path) -> None
 ])
 def test_bad_files_are_refused_with_the_cause_and_change_nothing(
         tmp_path: Path, content: Any, why: str) -> None:
-    s = BiasStoreSection(path=str(_write(tmp_path / "b.json", content)))
+    s = _store(path=str(_write(tmp_path / "b.json", content)))
     tables = {"imu": {"accel_bias_sd_mg": 5.0}}
-    out, state = bias_store.apply(tables, s, NOW)
+    out, state = _apply(tables, s, NOW)
     assert out is tables
     assert state.startswith("refused") and why in state, state
 
 
 def test_off_and_absent() -> None:
-    assert bias_store.apply({}, BiasStoreSection(), NOW) == ({}, "off")
-    out, state = bias_store.apply({}, BiasStoreSection(path="/nonexistent/b.json"), NOW)
+    assert _apply({}, _store(), NOW) == ({}, "off")
+    out, state = _apply({}, _store(path="/nonexistent/b.json"), NOW)
     assert out == {} and state == "none yet: /nonexistent/b.json"
 
 

@@ -12,7 +12,7 @@ import numpy.typing as npt
 import pytest
 
 from firmware_sim.alloc import measure_steps
-from navd.config import ConfigError, load_config
+from navd.config import ConfigError, DovSection, build_section, load_config
 from navd.core.aiding.dov import (
     ARCSEC,
     MGAL,
@@ -24,7 +24,7 @@ from navd.core.aiding.dov import (
 )
 from navd.core.earth import OMEGA_IE, radii
 from navd.core.estimator import Estimator
-from navd.io.dov_grid import DovSettings, load_dov_grid, save_dov_grid
+from navd.io.dov_grid import load_dov_grid, save_dov_grid
 from navd.pipeline import build_estimator
 
 Arr = npt.NDArray[np.float64]
@@ -266,14 +266,18 @@ def test_netcdf_round_trip_and_gmt_layouts(tmp_path: Path) -> None:
 # ------------------------------------------------------------------------ config, estimator
 
 
+def _dov(table: object) -> DovSection:
+    return build_section(DovSection, "dov", table)
+
+
 def test_settings_validation() -> None:
-    assert DovSettings.from_table({}) == DovSettings()
+    assert _dov({}) == DovSection()
     with pytest.raises(ConfigError, match="unknown key 'gird'"):
-        DovSettings.from_table({"gird": "x.nc"})
+        _dov({"gird": "x.nc"})
     with pytest.raises(ConfigError, match="enabled must be true or false"):
-        DovSettings.from_table({"enabled": "yes"})
+        _dov({"enabled": "yes"})
     with pytest.raises(ConfigError, match="angle_unit"):
-        DovSettings.from_table({"angle_unit": "deg"})
+        _dov({"angle_unit": "deg"})
 
 
 def test_build_estimator_keeps_normal_gravity_on_a_bad_grid(

@@ -11,7 +11,14 @@ import pytest
 from firmware_sim.polarization import parse_utc, rayleigh_dop, simulate_polarization
 from firmware_sim.run import generate
 from firmware_sim.scenario import PolarizationSpec, ScenarioError, load_scenario
-from navd.config import ConfigError, EstimatorConfig, load_config
+from navd.config import (
+    ConfigError,
+    EstimatorConfig,
+    PolarizationSection,
+    build_section,
+    load_config,
+)
+from navd.config.aiding import polarization_section
 from navd.core.aiding.polarization import (
     PolarizationAiding,
     _wrap_half_pi,
@@ -27,6 +34,15 @@ D2R = math.pi / 180.0
 MOUNT0 = {"mount_roll_deg": 0.0, "mount_pitch_deg": 0.0, "mount_yaw_deg": 0.0}
 UTC0 = parse_utc("2020-06-01T18:12:00+08:00")
 LAT, LON = 20.0 * D2R, 120.0 * D2R
+
+
+def _pol_section(table: dict[str, Any]) -> PolarizationSection:
+    return build_section(PolarizationSection, "polarization", table)
+
+
+def _aid(table: dict[str, Any]) -> PolarizationAiding:
+    """The aid a [polarization] table (TOML keys) describes."""
+    return PolarizationAiding(_pol_section(table))
 
 
 def _unit(v: Any) -> np.ndarray:
@@ -114,7 +130,7 @@ def _true_aop(yaw_deg: float, utc: float, mount: tuple[float, float, float] = (0
 
 
 def test_update_corrects_heading_and_refusals_are_counted() -> None:
-    aid = PolarizationAiding.from_config(MOUNT0)
+    aid = _aid(MOUNT0)
     est = _nav_estimator(aid)
     t = est.t_us
     a = _true_aop(210.0, UTC0)
@@ -152,7 +168,7 @@ def test_pi_ambiguous_reading_is_resolved_by_the_ins_prior() -> None:
     assert min(a_true, math.pi - a_true) < 0.01
     finals = []
     for reading in (0.003, math.pi - 0.002):
-        est = _nav_estimator(PolarizationAiding.from_config(MOUNT0), yaw_deg=yaw,
+        est = _nav_estimator(_aid(MOUNT0), yaw_deg=yaw,
                              yaw_err_deg=3.0)
         assert est.push(PolSample(est.t_us, reading, 0.6, UTC0))
         assert est.pol is not None
@@ -168,7 +184,7 @@ def test_sun_near_boresight_is_refused() -> None:
     _, el = sun_az_el(UTC0, LAT, LON, 50.0)
     az = math.atan2(s_n[1], s_n[0])
     # sensor pitched so its boresight (-z_s) points 5 deg from the sun
-    est = _nav_estimator(PolarizationAiding.from_config(
+    est = _nav_estimator(_aid(
         {"mount_roll_deg": 0.0, "mount_pitch_deg": -(90.0 - math.degrees(el) - 5.0),
          "mount_yaw_deg": 0.0}), yaw_deg=math.degrees(az))
     assert not est.push(PolSample(est.t_us, 1.0, 0.6, UTC0))
@@ -177,22 +193,24 @@ def test_sun_near_boresight_is_refused() -> None:
 
 def test_config_builder() -> None:
     with pytest.raises(ConfigError, match="mount"):
-        PolarizationAiding.from_config({"sigma_deg": 0.3})
+        _pol_section({"sigma_deg": 0.3})
     with pytest.raises(ConfigError, match="mount_yaw_deg"):
-        PolarizationAiding.from_config({"mount_roll_deg": 0, "mount_pitch_deg": 0})
+        _pol_section({"mount_roll_deg": 0, "mount_pitch_deg": 0})
     with pytest.raises(ConfigError, match="unknown key"):
-        PolarizationAiding.from_config({**MOUNT0, "sigma": 0.3})
+        _pol_section({**MOUNT0, "sigma": 0.3})
     with pytest.raises(ConfigError, match="sigma_deg"):
-        PolarizationAiding.from_config({**MOUNT0, "sigma_deg": "x"})
+        _pol_section({**MOUNT0, "sigma_deg": "x"})
     with pytest.raises(ConfigError, match="sigma_deg"):
-        PolarizationAiding.from_config({**MOUNT0, "sigma_deg": 0.0})
-    assert build_polarization({}) is None
-    assert build_polarization({"polarization": {**MOUNT0, "enabled": False}}) is None
-    aid = build_polarization({"polarization": {**MOUNT0, "mount_yaw_deg": 90.0}})
+        _pol_section({**MOUNT0, "sigma_deg": 0.0})
+    assert polarization_section({}) is None
+    assert build_polarization(polarization_section({})) is None
+    assert polarization_section({"polarization": {**MOUNT0, "enabled": False}}) is None
+    aid = build_polarization(
+        polarization_section({"polarization": {**MOUNT0, "mount_yaw_deg": 90.0}}))
     assert aid is not None
     assert np.allclose(aid.mat_sb, euler_to_mat(0.0, 0.0, math.pi / 2).T)
     shipped = load_config("config/navd.toml")["polarization"]
-    built = PolarizationAiding.from_config(shipped)
+    built = _aid(shipped)
     assert built.sigma == pytest.approx(0.3 * D2R)
 
 
@@ -270,7 +288,7 @@ def _static_tilted(duration_s: float, pitch_deg: float, yaw_deg: float, seed: in
     yaw0 = math.degrees(float(run.truth_euler[0, 2])) + 5.0
     cfg = EstimatorConfig.from_dict(load_config(None, [
         "init.heading_source=config", f"init.heading_deg={yaw0}", "init.heading_sd_deg=10"]))
-    return run, Estimator(cfg, pol=PolarizationAiding.from_config(MOUNT0) if pol_on else None)
+    return run, Estimator(cfg, pol=_aid(MOUNT0) if pol_on else None)
 
 
 @pytest.mark.parametrize("pol_on", [True, False])
@@ -338,7 +356,7 @@ def _turning_heading_rms(run: Any, delay_us: int, at_arrival: bool = False) -> t
     cfg = EstimatorConfig.from_dict(load_config(None, [
         "filter.mode=traditional", "init.heading_source=config", f"init.heading_deg={yaw0}",
         "init.heading_sd_deg=5"]))
-    est = Estimator(cfg, pol=PolarizationAiding.from_config(MOUNT0))
+    est = Estimator(cfg, pol=_aid(MOUNT0))
     if at_arrival:  # what navd did before: linearise about the state at arrival
         est.state_at = lambda t_us: False  # type: ignore[method-assign]
     errs = []

@@ -1,9 +1,14 @@
 """Configuration: one TOML file, every key with its unit in its name, SI inside.
 
-:mod:`navd.config.load` reads the file and ``--set`` overrides and builds typed sections;
-:mod:`navd.config.estimator` is the estimator's view, :mod:`navd.config.daemon` the daemon's.
+One naming rule for every section: the TOML key is ``<name>_<unit>`` (bare ``<name>`` when
+unitless), the Python attribute is ``<name>`` and holds the SI value.  One builder:
+:func:`build_section` (:mod:`navd.config.load`, which also reads the file and ``--set``
+overrides).  The sections: :mod:`navd.config.estimator` (the estimator's),
+:mod:`navd.config.aiding` (``[polarization]``, ``[dov]``, and :class:`NavConfig`, all the
+estimator is built from), :mod:`navd.config.daemon` (``navd run``'s own sections).
 """
 
+from navd.config.aiding import DovSection, NavConfig, PolarizationSection
 from navd.config.estimator import (
     EstimatorConfig,
     FilterSection,
@@ -13,10 +18,19 @@ from navd.config.estimator import (
     InitSection,
     MctlsSection,
 )
-from navd.config.load import ConfigError, apply_overrides, load_config, parse_override
+from navd.config.load import (
+    ConfigError,
+    apply_overrides,
+    build_section,
+    load_config,
+    parse_override,
+    setting,
+    toml_keys,
+)
 
 __all__ = [
     "ConfigError",
+    "DovSection",
     "EstimatorConfig",
     "FilterSection",
     "GnssSection",
@@ -24,7 +38,12 @@ __all__ = [
     "ImuSection",
     "InitSection",
     "MctlsSection",
+    "NavConfig",
+    "PolarizationSection",
     "apply_overrides",
+    "build_section",
     "load_config",
     "parse_override",
+    "setting",
+    "toml_keys",
 ]

@@ -1,24 +1,35 @@
-"""The estimator's configuration sections, typed and in SI units (keys carry their unit)."""
+"""The estimator's configuration sections, typed and in SI units (keys carry their unit).
+
+Plain dataclasses (core may import them); built by :func:`navd.config.load.build_section`.
+"""
 
 from __future__ import annotations
 
+import typing
 from dataclasses import dataclass, field, fields
 from typing import Any
 
-from navd.config.load import ConfigError, build_section
-from navd.config.load import unit_field as _f
+from navd.config.load import build_section, check
+from navd.config.load import setting as _f
 from navd.units import G0
 
 
 @dataclass(frozen=True)
 class FilterSection:
-    mode: str = field(default="completed", metadata={"kind": "str"})  # traditional|completed
-    robust: str = field(default="gate", metadata={"kind": "str"})  # none|gate|mctls
-    profile: str = field(default="ground", metadata={"kind": "str"})  # ground|fixed_wing|multirotor
+    mode: str = _f("completed", choices=("traditional", "completed"))
+    robust: str = _f("gate", choices=("none", "gate", "mctls"))
+    profile: str = _f("ground", choices=("ground", "fixed_wing", "multirotor"))
     cov_interval: float = _f(10.0, "ms")
-    coning: bool = field(default=True, metadata={"kind": "bool"})
-    gate_prob: float = _f(0.9999, "")
+    coning: bool = _f(True)
+    gate_prob: float = _f(0.9999)
+    # the estimator's IMU gap (s): an IMU sample whose interval (dt) is longer than this is
+    # refused and counted (imu_bad_dt); a time jump longer than this between two samples
+    # is counted as imu_gap, and beyond 1 s navigation re-initialises
     max_imu_gap: float = _f(100.0, "ms")
+
+    def validate(self) -> None:
+        check(0.5 < self.gate_prob < 1.0, "filter", "gate_prob", "in (0.5, 1)")
+        check(self.cov_interval > 0.0, "filter", "cov_interval_ms", "> 0")
 
 
 @dataclass(frozen=True)
@@ -29,10 +40,8 @@ class ImuSection:
     accel_bias_sd: float = _f(5.0, "mg")
     # known biases (measured = true + bias, body FRD): a calibration's offsets or biases
     # learned on an earlier run; the initial estimate, with gyro/accel_bias_sd its 1-sigma
-    gyro_bias: tuple[float, float, float] = field(
-        default=(0.0, 0.0, 0.0), metadata={"unit": "deg_per_h", "kind": "tuple"})
-    accel_bias: tuple[float, float, float] = field(
-        default=(0.0, 0.0, 0.0), metadata={"unit": "mg", "kind": "tuple"})
+    gyro_bias: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "deg_per_h")
+    accel_bias: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "mg")
     gyro_bias_rw: float = _f(0.1, "deg_per_h_per_sqrt_h")
     accel_bias_rw: float = _f(1e-5, "mps2_per_sqrt_s")
     max_accel: float = _f(50.0 * G0, "mps2")
@@ -41,7 +50,7 @@ class ImuSection:
 
 @dataclass(frozen=True)
 class InitSection:
-    heading_source: str = field(default="gnss_course", metadata={"kind": "str"})
+    heading_source: str = _f("gnss_course", choices=("config", "gnss_course", "none"))
     heading: float = _f(0.0, "deg")
     heading_sd: float = _f(10.0, "deg")
     aligned_sd: float = _f(2.0, "deg")
@@ -55,16 +64,15 @@ class InitSection:
 
 @dataclass(frozen=True)
 class GnssSection:
-    lever_arm: tuple[float, float, float] = field(
-        default=(0.0, 0.0, 0.0), metadata={"unit": "m", "kind": "tuple"})
+    lever_arm: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "m")
     min_pos_sd: float = _f(0.3, "m")
     min_vel_sd: float = _f(0.03, "mps")
     max_age: float = _f(500.0, "ms")
     # fixes stamped this long after their time of validity (a receiver or autopilot that
     # stamps on arrival); PX4's EKF2_GPS_DELAY, ArduPilot's GPS_DELAY_MS
     delay: float = _f(0.0, "ms")
-    use_position: bool = field(default=True, metadata={"kind": "bool"})
-    use_velocity: bool = field(default=True, metadata={"kind": "bool"})
+    use_position: bool = _f(True)
+    use_velocity: bool = _f(True)
 
 
 @dataclass(frozen=True)
@@ -74,20 +82,24 @@ class HeadingSection:
     max_lat_accel: float = _f(4.0, "mps2")
     sideslip_sd: float = _f(0.3, "deg")
     crab_sd: float = _f(0.0, "deg")  # fixed-wing allowance; 0 disables the update there
-    reset_after: int = field(default=10, metadata={"kind": "int"})
+    reset_after: int = _f(10)
     align_speed: float = _f(5.0, "mps")
     max_reverse_speed: float = _f(4.0, "mps")
     # at rest with a gyro too poor to gyrocompass, position/velocity fixes must not move the
     # heading (Estimator._heading_hold says why)
-    hold_static: bool = field(default=True, metadata={"kind": "bool"})
+    hold_static: bool = _f(True)
     hold_max_speed: float = _f(0.3, "mps")
 
 
 @dataclass(frozen=True)
 class MctlsSection:
-    window: int = field(default=20, metadata={"kind": "int"})
-    order: int = field(default=2, metadata={"kind": "int"})
-    min_weight: float = _f(0.2, "")
+    window: int = _f(20)
+    order: int = _f(2)
+    min_weight: float = _f(0.2)
+
+    def validate(self) -> None:
+        check(self.window >= 6 and 0 <= self.order <= 3, "mctls", "window/order",
+              "window >= 6 and 0 <= order <= 3")
 
 
 @dataclass(frozen=True)
@@ -103,29 +115,7 @@ class EstimatorConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EstimatorConfig:
-        kw: dict[str, Any] = {}
-        for f in fields(cls):
-            if f.name in data:
-                sec_cls = type(getattr(cls(), f.name))
-                kw[f.name] = build_section(sec_cls, f.name, data[f.name])
-        cfg = cls(**kw)
-        cfg.validate()
-        return cfg
-
-    def validate(self) -> None:
-        choices = {
-            "[filter] mode": (self.filter.mode, ("traditional", "completed")),
-            "[filter] robust": (self.filter.robust, ("none", "gate", "mctls")),
-            "[filter] profile": (self.filter.profile, ("ground", "fixed_wing", "multirotor")),
-            "[init] heading_source": (self.init.heading_source,
-                                      ("config", "gnss_course", "none")),
-        }
-        for where, (val, allowed) in choices.items():
-            if val not in allowed:
-                raise ConfigError(f"{where} = {val!r}; expected one of {allowed}")
-        if not 0.5 < self.filter.gate_prob < 1.0:
-            raise ConfigError("[filter] gate_prob must be in (0.5, 1)")
-        if self.filter.cov_interval <= 0.0:
-            raise ConfigError("[filter] cov_interval_ms must be > 0")
-        if self.mctls.window < 6 or not 0 <= self.mctls.order <= 3:
-            raise ConfigError("[mctls] window_ >= 6 and 0 <= order <= 3 required")
+        hints = typing.get_type_hints(cls)
+        kw: dict[str, Any] = {f.name: build_section(hints[f.name], f.name, data[f.name])
+                              for f in fields(cls) if f.name in data}
+        return cls(**kw)

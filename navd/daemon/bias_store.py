@@ -17,13 +17,15 @@ File (JSON, replaced atomically)::
 Biases are body FRD, measured = true + bias.  At start (:func:`apply`), a usable file sets
 ``[imu] gyro_bias_deg_per_h`` / ``accel_bias_mg`` and lowers ``gyro_bias_sd_deg_per_h`` /
 ``accel_bias_sd_mg`` to the stored 1-sigma combined with the sensor's turn-on repeatability
-(``repeat_*``), never raising them.  The estimator therefore sees ordinary config, and a
-recording made by the daemon carries the biases it started with, so it replays exactly.  A
-file is refused, with a warning naming the cause, when it is unreadable, of another schema
-or IMU, older than ``max_age_days`` or dated in the future, non-finite, or implausible against
-the configured prior (beyond 5 sigma).  It is written (:func:`snapshot`, :func:`save`) every
-``save_period_s`` and at stop, but only while every bias 1-sigma is within ``max_*_sd``: a
-run that learned nothing leaves the file as it was.
+(``repeat_*``), never raising them.  (The section,
+:class:`navd.config.daemon.BiasStoreSection`, holds SI values; the file and this module's
+arithmetic are in the keys' units: deg/h, mg, days.) The estimator therefore sees ordinary
+config, and a recording made by the daemon carries the biases it started with, so it replays
+exactly.  A file is refused, with a warning naming the cause, when it is unreadable, of
+another schema or IMU, older than ``max_age_days`` or dated in the future, non-finite, or
+implausible against the configured prior (beyond 5 sigma).  It is written (:func:`snapshot`,
+:func:`save`) every ``save_period_s`` and at stop, but only while every bias 1-sigma is
+within ``max_*_sd``: a run that learned nothing leaves the file as it was.
 """
 
 from __future__ import annotations
@@ -33,43 +35,22 @@ import json
 import math
 import os
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from navd import __version__
-from navd.config import ConfigError, EstimatorConfig
+from navd.config.daemon import BiasStoreSection
+from navd.config.estimator import ImuSection
+from navd.config.load import from_si
 from navd.core.estimator import Estimator
 from navd.units import G0
 
-__all__ = ["SCHEMA", "BiasStoreSection", "apply", "save", "snapshot"]
+__all__ = ["SCHEMA", "apply", "save", "snapshot"]
 
 SCHEMA = 1
 _DPH = 180.0 / math.pi * 3600.0  # rad/s -> deg/h
 _MG = 1e3 / G0  # m/s^2 -> mg
 _FUTURE_TOLERANCE_S = 86_400.0  # a host clock set back by a day is not yet a bad file
-
-
-@dataclass(frozen=True)
-class BiasStoreSection:
-    path: str = ""  # "" = off; under systemd: /var/lib/navd/imu_bias.json (StateDirectory)
-    imu_id: str = ""  # names the IMU (serial, node); a file of another IMU is refused
-    save_period_s: float = 600.0
-    max_gyro_sd_deg_per_h: float = 3.0
-    max_accel_sd_mg: float = 1.0
-    repeat_gyro_sd_deg_per_h: float = 1.0
-    repeat_accel_sd_mg: float = 0.5
-    max_age_days: float = 30.0
-
-    def validate(self) -> None:
-        def check(ok: bool, key: str, what: str) -> None:
-            if not ok:
-                raise ConfigError(f"[bias_store] {key} must be {what}")
-        check(self.save_period_s >= 10.0, "save_period_s", "a number of seconds >= 10")
-        for key in ("max_gyro_sd_deg_per_h", "max_accel_sd_mg", "max_age_days"):
-            check(getattr(self, key) > 0.0, key, "a number > 0")
-        for key in ("repeat_gyro_sd_deg_per_h", "repeat_accel_sd_mg"):
-            check(getattr(self, key) >= 0.0, key, "a number >= 0")
 
 
 def _vec3(d: dict[str, Any], key: str) -> list[float]:
@@ -101,8 +82,9 @@ def _read(path: Path, s: BiasStoreSection, prior: dict[str, float], now_unix_s: 
     age_days = (now_unix_s - float(saved)) / 86_400.0
     if now_unix_s - float(saved) < -_FUTURE_TOLERANCE_S:
         raise ValueError(f"dated {-age_days:.1f} days in the future (host clock?)")
-    if age_days > s.max_age_days:
-        raise ValueError(f"{age_days:.1f} days old, max_age_days = {s.max_age_days:g}")
+    max_age_days = from_si(s.max_age, "days")
+    if age_days > max_age_days:
+        raise ValueError(f"{age_days:.1f} days old, max_age_days = {max_age_days:g}")
     v = {k: _vec3(d, k) for k in ("gyro_bias_deg_per_h", "gyro_bias_sd_deg_per_h",
                                   "accel_bias_mg", "accel_bias_sd_mg")}
     if min(v["gyro_bias_sd_deg_per_h"] + v["accel_bias_sd_mg"]) <= 0.0:
@@ -117,17 +99,19 @@ def _read(path: Path, s: BiasStoreSection, prior: dict[str, float], now_unix_s: 
     return v
 
 
-def apply(tables: dict[str, Any], s: BiasStoreSection, now_unix_s: float
+def apply(tables: dict[str, Any], s: BiasStoreSection, imu_cfg: ImuSection, now_unix_s: float
           ) -> tuple[dict[str, Any], str]:
     """Config tables with the stored biases merged into ``[imu]``, and what happened
-    ("off", "none yet: PATH", "loaded ...", "refused: ...").  Never raises for a bad file."""
+    ("off", "none yet: PATH", "loaded ...", "refused: ...").  Never raises for a bad file.
+
+    ``imu_cfg`` is the ``[imu]`` section already built from ``tables`` (the configured prior)."""
     if not s.path:
         return tables, "off"
     path = Path(s.path)
     if not path.exists():
         return tables, f"none yet: {path}"
     table = tables.get("imu", {})
-    c = EstimatorConfig.from_dict(tables).imu  # validated, defaults filled in (SI)
+    c = imu_cfg  # validated, defaults filled in (SI)
     # the configured prior, as written in the table (no unit round trip) or the default
     prior = {"gyro_bias_sd_deg_per_h": float(table.get("gyro_bias_sd_deg_per_h",
                                                        c.gyro_bias_sd * _DPH)),
@@ -136,8 +120,8 @@ def apply(tables: dict[str, Any], s: BiasStoreSection, now_unix_s: float
         v = _read(path, s, prior, now_unix_s)
     except ValueError as exc:
         return tables, f"refused: {path}: {exc}"
-    g_sd = math.hypot(max(v["gyro_bias_sd_deg_per_h"]), s.repeat_gyro_sd_deg_per_h)
-    a_sd = math.hypot(max(v["accel_bias_sd_mg"]), s.repeat_accel_sd_mg)
+    g_sd = math.hypot(max(v["gyro_bias_sd_deg_per_h"]), from_si(s.repeat_gyro_sd, "deg_per_h"))
+    a_sd = math.hypot(max(v["accel_bias_sd_mg"]), from_si(s.repeat_accel_sd, "mg"))
     imu = dict(table)
     imu["gyro_bias_deg_per_h"] = v["gyro_bias_deg_per_h"]
     imu["accel_bias_mg"] = v["accel_bias_mg"]
@@ -166,7 +150,8 @@ def snapshot(est: Estimator, s: BiasStoreSection, now_unix_s: float) -> dict[str
     ba = [float(x) * _MG for x in est.bias_a]
     if not all(math.isfinite(x) for x in bg + ba + g_sd + a_sd):
         return None
-    if max(g_sd) > s.max_gyro_sd_deg_per_h or max(a_sd) > s.max_accel_sd_mg:
+    if (max(g_sd) > from_si(s.max_gyro_sd, "deg_per_h")
+            or max(a_sd) > from_si(s.max_accel_sd, "mg")):
         return None
     return {"schema": SCHEMA, "imu": s.imu_id, "saved_unix_s": now_unix_s, "navd": __version__,
             "gyro_bias_deg_per_h": bg, "gyro_bias_sd_deg_per_h": g_sd,

@@ -31,10 +31,11 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from navd.config import EstimatorConfig
+from navd.config.aiding import NavConfig
 from navd.config.daemon import DaemonConfig
 from navd.core.aiding.dov import dov_status
 from navd.daemon import bias_store
+from navd.daemon.adapters import zenoh_session_config
 from navd.daemon.service import SdNotifier, watchdog_interval_s
 from navd.daemon.sinks import (
     MAV_STATE_ACTIVE,
@@ -74,7 +75,7 @@ def _is_refusal(counter: str) -> bool:
 _STALL_S = 1.0
 
 
-def warm_up(tables: dict[str, Any]) -> float:
+def warm_up(nav: NavConfig) -> float:
     """Drive a throwaway estimator through 4 s of synthetic straight driving; return seconds.
 
     Compiles (or loads from numba's cache) every kernel the first real samples would need,
@@ -83,7 +84,7 @@ def warm_up(tables: dict[str, Any]) -> float:
     delayed-fix path is exercised too.
     """
     t0 = time.perf_counter()
-    est = build_estimator(tables)
+    est = build_estimator(nav)
     dt_us, speed, lat0, lon0, r_earth = 10_000, 10.0, 0.6, 1.9, 6.37e6
     for k in range(1, 401):
         t_us = k * dt_us
@@ -104,18 +105,18 @@ class Daemon:
     def __init__(self, cfg: DaemonConfig, *, record_path: str | None = None,
                  notifier: SdNotifier | None = None, extra_sinks: Sequence[Sink] = (),
                  handle_signals: bool = True) -> None:
-        tables, self.bias_store_state = bias_store.apply(cfg.tables, cfg.bias_store, time.time())
+        tables, self.bias_store_state = bias_store.apply(cfg.tables, cfg.bias_store,
+                                                         cfg.estimator.imu, time.time())
         if self.bias_store_state.startswith("refused"):
             _log.warning("learned IMU biases %s", self.bias_store_state)
         elif cfg.bias_store.path:
             _log.info("learned IMU biases: %s", self.bias_store_state)
         if tables is not cfg.tables:  # the estimator and any recording see the biases used
-            cfg = dataclasses.replace(cfg, tables=tables,
-                                      estimator=EstimatorConfig.from_dict(tables))
+            cfg = dataclasses.replace(cfg, tables=tables, nav=NavConfig.from_tables(tables))
         self.cfg = cfg
-        self.est = build_estimator(cfg.tables)  # raises ConfigError on a bad [dov]/[polarization]
+        self.est = build_estimator(cfg.nav)
         self.notifier = notifier if notifier is not None else SdNotifier()
-        self.rlog = RateLimitedLog(_log, cfg.daemon.warn_interval_s)
+        self.rlog = RateLimitedLog(_log, cfg.daemon.warn_interval)
         self.queue = SampleQueue(cfg.daemon.queue_size, self.rlog)
         self.sources = Sources(cfg, self.queue)
         self.sinks: list[Sink] = []
@@ -148,7 +149,7 @@ class Daemon:
 
     async def run(self) -> int:
         if self.cfg.daemon.warm_up:
-            _log.info("estimator kernels ready in %.1f s", warm_up(self.cfg.tables))
+            _log.info("estimator kernels ready in %.1f s", warm_up(self.cfg.nav))
         try:
             inputs = await self._open()
         except Exception as exc:  # any failure to open is fatal and must say what failed
@@ -171,7 +172,7 @@ class Daemon:
                 wd = watchdog_interval_s()
                 if wd is not None and self.cfg.daemon.watchdog and self.notifier.enabled:
                     helpers.append(tg.create_task(self._watchdog_loop(wd), name="watchdog"))
-                hb = self.cfg.mavlink.heartbeat_period_s
+                hb = self.cfg.mavlink.heartbeat_period
                 if self.mavlink_sink is not None and hb > 0.0:
                     helpers.append(tg.create_task(
                         self.mavlink_sink.run_heartbeat(hb, self._mav_state), name="heartbeat"))
@@ -192,8 +193,8 @@ class Daemon:
     async def _open(self) -> list[str]:
         c = self.cfg
         if c.zenoh.enabled:
-            self.zenoh_sink = ZenohSink(ZenohPublisher(c.zenoh.session_config()),
-                                        c.zenoh.attitude_rate_hz)
+            self.zenoh_sink = ZenohSink(ZenohPublisher(zenoh_session_config(c.zenoh)),
+                                        c.zenoh.attitude_rate)
         inputs = await self.sources.open()
         m = c.mavlink
         if m.enabled and m.send:
@@ -201,19 +202,19 @@ class Daemon:
             link = self.sources.mavlink if shared else await MavlinkLink.open(m.send)
             assert link is not None  # config validation: "same" needs a listen link
             self.mavlink_sink = MavlinkSink(
-                link, MavlinkEncoder(m.sysid, m.compid, m.geoid_sep_m), m.attitude_rate_hz,
+                link, MavlinkEncoder(m.sysid, m.compid, m.geoid_sep), m.attitude_rate,
                 quaternion=m.attitude_quaternion, global_position=m.global_position,
                 own_link=not shared)
         sinks: list[Sink] = [self.mavlink_sink] if self.mavlink_sink is not None else []
         d = c.dronecan
         if d.enabled and d.solution_out and self.sources.dronecan is not None:
             sinks.append(DronecanSink(self.sources.dronecan, DronecanEncoder(d.node_id),
-                                      d.solution_rate_hz))
+                                      d.solution_rate))
         if self.zenoh_sink is not None:
             sinks.append(self.zenoh_sink)
         self.sinks = sinks + self._extra
         if self.record_path:
-            rate = 1e6 / self.sinks[0].schedule.period_us if self.sinks else m.attitude_rate_hz
+            rate = 1e6 / self.sinks[0].schedule.period_us if self.sinks else m.attitude_rate
             self.recorder = RecordingWriter(self.record_path, c.tables, rate)
             _log.info("recording pushed samples to %s", self.record_path)
         return inputs
@@ -290,11 +291,11 @@ class Daemon:
 
     async def _status_loop(self) -> None:
         d = self.cfg.daemon
-        next_log = time.monotonic() + d.log_period_s
-        next_save = time.monotonic() + self.cfg.bias_store.save_period_s
+        next_log = time.monotonic() + d.log_period
+        next_save = time.monotonic() + self.cfg.bias_store.save_period
         seen = dict(self.est.counters)
         while True:
-            await asyncio.sleep(d.status_period_s)
+            await asyncio.sleep(d.status_period)
             self._note_progress()
             if self.zenoh_sink is not None and self.cfg.zenoh.status:
                 self.zenoh_sink.publish_status(self.status())
@@ -308,10 +309,10 @@ class Daemon:
             if self.recorder is not None:
                 self.recorder.flush()
             if time.monotonic() >= next_save:
-                next_save += self.cfg.bias_store.save_period_s
+                next_save += self.cfg.bias_store.save_period
                 self.save_biases()
             if time.monotonic() >= next_log:
-                next_log += d.log_period_s
+                next_log += d.log_period
                 _log.info("%s", self.log_line())
 
     async def _watchdog_loop(self, timeout_s: float) -> None:
@@ -349,7 +350,7 @@ class Daemon:
             return "stopping"
         if self.est.t_us < 0:
             return "waiting for IMU"
-        stall_s = max(_STALL_S, 2.0 * self.cfg.daemon.status_period_s)
+        stall_s = max(_STALL_S, 2.0 * self.cfg.daemon.status_period)
         if time.monotonic() - self._progress_at > stall_s:
             return "stalled"
         return "navigating" if self.est.initialized else "initializing"

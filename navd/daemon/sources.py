@@ -27,6 +27,7 @@ import time
 from typing import ClassVar, Generic, Protocol, TypeVar
 
 from navd.config.daemon import DaemonConfig
+from navd.daemon.adapters import dronecan_bus_config, mavlink_input_config
 from navd.diag import RateLimitedLog
 from navd.io.common import Sample, SampleCallback
 from navd.io.dronecan import DronecanDecoder, DronecanLink
@@ -174,9 +175,9 @@ class MavlinkInput(_DecodingInput[MavlinkDecoder, MavlinkLink]):
     async def open(self, queue: SampleQueue) -> str:
         m = self.cfg.mavlink
         clock, on_sample = _queueing(queue)
-        self.decoder = MavlinkDecoder(m.input_config())
+        self.decoder = MavlinkDecoder(mavlink_input_config(m))
         self.link = await MavlinkLink.open(m.listen, self.decoder, on_sample, clock_us=clock)
-        rx = self.cfg.daemon.rx_buffer_bytes
+        rx = self.cfg.daemon.rx_buffer
         if rx:
             # The default (~200 kB, ~270 small datagrams) overflows during a short
             # stall of the loop at kHz input rates; the kernel counts, nobody else.
@@ -204,7 +205,7 @@ class DronecanInput(_DecodingInput[DronecanDecoder, DronecanLink]):
     async def open(self, queue: SampleQueue) -> str:
         d = self.cfg.dronecan
         clock, on_sample = _queueing(queue)
-        bus_cfg = d.bus_config()
+        bus_cfg = dronecan_bus_config(d)
         self.decoder = DronecanDecoder(bus_cfg)
         self.link = await DronecanLink.open(bus_cfg, self.decoder, on_sample, clock_us=clock)
         return f"dronecan {d.interface}:{d.channel}"

@@ -29,20 +29,20 @@ shapes, implausible magnitudes) raises :class:`DovGridError` naming the file and
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from navd.config import ConfigError
+from navd.config.aiding import DovSection
 from navd.core.aiding.dov import MGAL, DovGrid, DovGridError
 from navd.units import ARCSEC
 
 Arr = npt.NDArray[np.float64]
 
-__all__ = ["DovGridError", "DovSettings", "load_dov_grid", "load_from_settings",
+__all__ = ["DovGridError", "load_dov_grid", "load_from_settings",
            "save_dov_grid"]
 
 NPZ_KEYS = ("lat_deg", "lon_deg", "xi_arcsec", "eta_arcsec")
@@ -72,46 +72,9 @@ _LON_NAMES = ("lon", "longitude", "x", "lon_deg")
 
 # ---------------------------------------------------------------------------------- config
 
-@dataclass(frozen=True)
-class DovSettings:
-    """The ``[dov]`` config section (see config/navd.toml and docs/dov.md)."""
-
-    enabled: bool = False
-    grid: str = ""  # .npz (navd layout) or GMT/COARDS netCDF
-    eta_grid: str = ""  # second one-variable GMT grid holding eta ("" = eta is in `grid`)
-    xi_var: str = ""  # netCDF variable names ("" = found by name)
-    eta_var: str = ""
-    dg_var: str = ""
-    angle_unit: str = ""  # "arcsec" | "microrad" | "rad" when a file has no units attribute
-    use_dg: bool = True  # apply the grid's gravity disturbance along down, when it has one
-
-    @classmethod
-    def from_table(cls, table: object) -> DovSettings:
-        """Validate the raw ``[dov]`` table; :class:`ConfigError` names key and type."""
-        if not isinstance(table, dict):
-            raise ConfigError("[dov] must be a table")
-        spec = {f.name: f for f in fields(cls)}
-        kw: dict[str, Any] = {}
-        for key, value in table.items():
-            f = spec.get(key)
-            if f is None:
-                raise ConfigError(f"[dov] unknown key {key!r}; expected one of: "
-                                  f"{', '.join(spec)}")
-            want = bool if f.type in (bool, "bool") else str
-            if not isinstance(value, want):
-                raise ConfigError(f"[dov] {key} must be "
-                                  f"{'true or false' if want is bool else 'a string'}, "
-                                  f"got {value!r}")
-            kw[key] = value
-        s = cls(**kw)
-        if s.angle_unit not in ("", *_ANGLE_ALIASES):
-            raise ConfigError(f"[dov] angle_unit = {s.angle_unit!r}; expected one of "
-                              f"{['', *_ANGLE_ALIASES]}")
-        return s
-
-
-def load_from_settings(s: DovSettings) -> DovGrid:
-    """Load the grid that ``[dov]`` names; raises :class:`DovGridError` (never exits)."""
+def load_from_settings(s: DovSection) -> DovGrid:
+    """Load the grid that ``[dov]`` (:class:`navd.config.aiding.DovSection`) names; raises
+    :class:`DovGridError` (never exits)."""
     if not s.grid:
         raise DovGridError("[dov] enabled but no grid file given ([dov] grid)")
     g = load_dov_grid(s.grid, eta_path=s.eta_grid or None, xi_var=s.xi_var,

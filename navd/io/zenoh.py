@@ -35,6 +35,7 @@ from typing import Any
 
 import zenoh
 
+from navd.config.daemon import ZENOH_BAD_CHUNK_CHARS
 from navd.diag import Counters
 from navd.types import NavSolution
 
@@ -51,7 +52,7 @@ __all__ = [
 _log = logging.getLogger(__name__)
 
 SCHEMA_VERSION = 1
-_BAD_CHUNK_CHARS = set("/*$?#")
+_BAD_CHUNK_CHARS = ZENOH_BAD_CHUNK_CHARS  # the rule [zenoh] vehicle is checked against
 
 
 @dataclass(frozen=True)

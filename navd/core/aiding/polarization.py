@@ -42,19 +42,17 @@ grows as the DoP falls (fewer polarised photons per unit of intensity noise).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
-from navd.config import ConfigError
+from navd.config.aiding import PolarizationSection
 from navd.core._jit import jit
 from navd.core.chi2 import chi2_quantile
 from navd.core.rotation import euler_to_mat_into
 from navd.core.sun import sun_ned_into
 from navd.types import PolSample
-from navd.units import DEG
 
 if TYPE_CHECKING:
     from navd.core.estimator import Estimator
@@ -129,83 +127,23 @@ class PolarizationAiding:
     Owns its scratch arrays; :meth:`update` allocates no ndarray.
     """
 
-    def __init__(self, mount_rpy_rad: tuple[float, float, float], sigma_rad: float,
-                 dop_min: float, boresight_exclusion_rad: float, sun_zenith_max_rad: float,
-                 sigma_dop_ref: float = 0.0, gate_prob: float = 0.9999,
-                 max_age_s: float = 0.5) -> None:
-        if not (sigma_rad > 0.0 and math.isfinite(sigma_rad)):
-            raise ConfigError("[polarization] sigma_deg must be > 0")
-        if not 0.0 <= dop_min < 1.0:
-            raise ConfigError("[polarization] dop_min must be in [0, 1)")
-        if not 0.0 <= boresight_exclusion_rad < 0.5 * math.pi:
-            raise ConfigError("[polarization] boresight_exclusion_deg must be in [0, 90)")
-        if not 0.0 < sun_zenith_max_rad <= math.pi:
-            raise ConfigError("[polarization] sun_zenith_max_deg must be in (0, 180]")
-        if not 0.5 < gate_prob < 1.0:
-            raise ConfigError("[polarization] gate_prob must be in (0.5, 1)")
-        if not (sigma_dop_ref >= 0.0 and max_age_s > 0.0):
-            raise ConfigError("[polarization] sigma_dop_ref >= 0 and max_age_ms > 0 required")
-        self.mount_rpy_rad = mount_rpy_rad
-        self.sigma = sigma_rad
-        self.dop_min = dop_min
-        self.sigma_dop_ref = sigma_dop_ref
-        self.rho2_min = math.sin(boresight_exclusion_rad) ** 2
-        self.cos_zenith_max = math.cos(sun_zenith_max_rad)
-        self.gate = chi2_quantile(gate_prob, 1)
-        self.max_age_us = max_age_s * 1e6
+    def __init__(self, cfg: PolarizationSection) -> None:
+        """``cfg``: the validated ``[polarization]`` section (SI; :mod:`navd.config.aiding`)."""
+        self.cfg = cfg
+        self.mount_rpy_rad = cfg.mount_rpy
+        self.sigma = cfg.sigma
+        self.dop_min = cfg.dop_min
+        self.sigma_dop_ref = cfg.sigma_dop_ref
+        self.rho2_min = math.sin(cfg.boresight_exclusion) ** 2
+        self.cos_zenith_max = math.cos(cfg.sun_zenith_max)
+        self.gate = chi2_quantile(cfg.gate_prob, 1)
+        self.max_age_us = cfg.max_age * 1e6
         mat_bs = np.zeros((3, 3))
-        euler_to_mat_into(mat_bs, *mount_rpy_rad)  # C_s^b
+        euler_to_mat_into(mat_bs, *self.mount_rpy_rad)  # C_s^b
         self.mat_sb = np.ascontiguousarray(mat_bs.T)  # C_b^s
         self.s_n = np.zeros(3)
         self.last_nis = math.nan
         self.last_innovation = math.nan
-
-    # ------------------------------------------------------------------ config
-    @classmethod
-    def from_config(cls, table: Mapping[str, Any]) -> PolarizationAiding:
-        """Build from the raw ``[polarization]`` TOML table (keys carry units).
-
-        The mounting must be given explicitly (``mount_roll_deg``, ``mount_pitch_deg``,
-        ``mount_yaw_deg``; zeros for a sensor aligned with the body): an AoP is meaningless
-        without it, so a missing mounting is a :class:`ConfigError`, never a default.
-        """
-        if not isinstance(table, Mapping):
-            raise ConfigError("[polarization] must be a table")
-        known = {"enabled", "mount_roll_deg", "mount_pitch_deg", "mount_yaw_deg", "sigma_deg",
-                 "sigma_dop_ref", "dop_min", "boresight_exclusion_deg", "sun_zenith_max_deg",
-                 "gate_prob", "max_age_ms"}
-        for key in table:
-            if key not in known:
-                raise ConfigError(f"[polarization] unknown key {key!r}; expected one of: "
-                                  f"{', '.join(sorted(known))}")
-        missing = [k for k in ("mount_roll_deg", "mount_pitch_deg", "mount_yaw_deg")
-                   if k not in table]
-        if missing:
-            raise ConfigError(
-                f"[polarization] {', '.join(missing)} missing: the sensor -> body mounting "
-                "rotation (ZYX roll/pitch/yaw, deg) must be configured; use 0 for a sensor "
-                "whose x/y axes are the body's forward/right and that looks up (-z)")
-
-        def num(key: str, default: float) -> float:
-            v = table.get(key, default)
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-                raise ConfigError(f"[polarization] {key} must be a finite number, got {v!r}")
-            return float(v)
-
-        en = table.get("enabled", True)
-        if not isinstance(en, bool):
-            raise ConfigError(f"[polarization] enabled must be true or false, got {en!r}")
-        return cls(
-            mount_rpy_rad=(num("mount_roll_deg", 0.0) * DEG, num("mount_pitch_deg", 0.0) * DEG,
-                           num("mount_yaw_deg", 0.0) * DEG),
-            sigma_rad=num("sigma_deg", 0.3) * DEG,
-            dop_min=num("dop_min", 0.05),
-            boresight_exclusion_rad=num("boresight_exclusion_deg", 10.0) * DEG,
-            sun_zenith_max_rad=num("sun_zenith_max_deg", 96.0) * DEG,
-            sigma_dop_ref=num("sigma_dop_ref", 0.5),
-            gate_prob=num("gate_prob", 0.9999),
-            max_age_s=num("max_age_ms", 500.0) * 1e-3,
-        )
 
     # ------------------------------------------------------------------ update
     def update(self, est: Estimator, sample: PolSample) -> None:
@@ -259,14 +197,6 @@ class PolarizationAiding:
         self.last_nis = est.fuse_block(1, self.gate, "pol")
 
 
-def build_polarization(raw_config: Mapping[str, Any]) -> PolarizationAiding | None:
-    """The aid described by a full raw config (``load_config``), or None without one.
-
-    None when there is no ``[polarization]`` table or it says ``enabled = false``.
-    """
-    table = raw_config.get("polarization")
-    if table is None:
-        return None
-    if isinstance(table, Mapping) and table.get("enabled", True) is False:
-        return None
-    return PolarizationAiding.from_config(table)
+def build_polarization(cfg: PolarizationSection | None) -> PolarizationAiding | None:
+    """The aid a ``[polarization]`` section describes (None: no aid)."""
+    return None if cfg is None else PolarizationAiding(cfg)

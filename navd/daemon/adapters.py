@@ -1,0 +1,50 @@
+"""The I/O adapters' settings objects, made from the daemon's config sections.
+
+Config (:mod:`navd.config.daemon`) does not depend on the adapters; the daemon layer, which
+uses both, translates: SI section attributes in, each adapter's own settings dataclass out.
+"""
+
+from __future__ import annotations
+
+from navd.config.daemon import DronecanSection, MavlinkSection, ZenohSection
+from navd.io.dronecan import DronecanConfig
+from navd.io.mavlink import MavlinkInputConfig
+from navd.io.zenoh import ZenohConfig
+
+__all__ = ["dronecan_bus_config", "mavlink_input_config", "zenoh_session_config"]
+
+
+def mavlink_input_config(m: MavlinkSection) -> MavlinkInputConfig:
+    return MavlinkInputConfig(
+        imu_messages=frozenset(m.imu_messages),
+        gnss_messages=frozenset(m.gnss_messages),
+        imu_id=None if m.imu_id < 0 else m.imu_id,
+        gnss_id=None if m.gnss_id < 0 else m.gnss_id,
+        allow=frozenset(m.allow) if m.allow else None,
+        nominal_imu_rate_hz=m.nominal_imu_rate or None,
+        max_imu_gap_s=m.max_imu_gap,
+        raw_gyro_rps_per_lsb=m.raw_gyro or None,
+        raw_accel_mps2_per_lsb=m.raw_accel or None,
+        geoid_sep_m=m.geoid_sep,
+        uere_m=m.uere,
+        use_receive_time=m.use_receive_time,
+        polarization=m.polarization,
+    )
+
+
+def dronecan_bus_config(d: DronecanSection) -> DronecanConfig:
+    return DronecanConfig(
+        interface=d.interface,
+        channel=d.channel,
+        node_id=d.node_id,
+        allow_nodes=frozenset(d.allow_nodes) if d.allow_nodes else None,
+        transfer_timeout_s=d.transfer_timeout,
+        nominal_imu_rate_hz=d.nominal_imu_rate or None,
+        max_imu_gap_s=d.max_imu_gap,
+        use_receive_time=d.use_receive_time,
+    )
+
+
+def zenoh_session_config(z: ZenohSection) -> ZenohConfig:
+    return ZenohConfig(vehicle=z.vehicle, listen=z.listen, connect=z.connect,
+                       multicast_scouting=z.multicast_scouting)
