@@ -18,29 +18,26 @@ import os
 import shutil
 import sys
 import tempfile
-import tomllib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from firmware_sim.scenario import ScenarioError, builtin_scenarios, load_scenario
+from navd.config import ConfigError, parse_override
 
 EXIT_USAGE = 2
 
 
 def parse_set(items: Sequence[str]) -> dict[str, Any]:
-    """``key=value`` pairs; values are TOML (``60``, ``true``, ``[1, 2]``, ``"x"``), else text."""
+    """``key=value`` pairs; values are TOML (``60``, ``true``, ``[1, 2]``, ``"x"``), else text
+    (parsed as navd's ``--set``: :func:`navd.config.parse_override`)."""
     out: dict[str, Any] = {}
     for item in items:
-        key, sep, raw = item.partition("=")
-        key = key.strip()
-        if not sep or not key:
-            raise ScenarioError(f"--set {item!r}: expected key=value")
         try:
-            value: Any = tomllib.loads(f"v = {raw.strip()}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = raw.strip()
-        out[key] = value
+            parts, value = parse_override(item, min_depth=1)
+        except ConfigError:
+            raise ScenarioError(f"--set {item!r}: expected key=value") from None
+        out[".".join(parts)] = value
     return out
 
 

@@ -23,6 +23,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from navd.config.load import ConfigError, set_override
 from navd.units import DEG
 
 __all__ = [
@@ -563,19 +564,10 @@ def _read_source(name_or_path: str | Path) -> tuple[str, str]:
 
 
 def _apply_override(tree: dict[str, Any], dotted: str, value: Any) -> None:
-    parts = dotted.split(".")
-    if not all(parts):
-        raise ScenarioError(f"{dotted}: bad override key")
-    node = tree
-    for i, part in enumerate(parts[:-1]):
-        nxt = node.setdefault(part, {})
-        if not isinstance(nxt, dict):
-            raise ScenarioError(f"{'.'.join(parts[: i + 1])}: is not a table, cannot set "
-                                f"{dotted}")
-        node = nxt
-    if isinstance(value, tuple):
-        value = list(value)
-    node[parts[-1]] = value
+    try:  # navd's override rule (navd.config), with the scenario's error type
+        set_override(tree, dotted.split("."), list(value) if isinstance(value, tuple) else value)
+    except ConfigError as exc:
+        raise ScenarioError(str(exc)) from None
 
 
 def load_scenario(name_or_path: str | Path,

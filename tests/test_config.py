@@ -51,3 +51,36 @@ def test_bad_values_name_key_and_unit(override: str, needle: str) -> None:
     with pytest.raises(ConfigError) as exc:
         EstimatorConfig.from_dict(load_config(None, [override]))
     assert needle in str(exc.value)
+
+
+def test_every_shipped_key_loads_through_the_one_builder() -> None:
+    """Every section of config/navd.toml is a dataclass built by build_section, and every key
+    written there is one of its TOML keys (``<name>_<unit>`` or bare ``<name>``)."""
+    from navd.config import DovSection, PolarizationSection, build_section, toml_keys
+    from navd.config.daemon import _SECTIONS, DaemonConfig
+
+    doc = tomllib.loads((ROOT / "config" / "navd.toml").read_text())
+    est = {f.name: type(getattr(EstimatorConfig(), f.name)) for f in fields(EstimatorConfig)}
+    sections = {**est, **_SECTIONS, "polarization": PolarizationSection, "dov": DovSection}
+    assert set(doc) == set(sections)
+    for name, table in doc.items():
+        cls = sections[name]
+        assert set(table) <= set(toml_keys(cls)), name
+        build_section(cls, name, table)  # every value type-checks and validates
+    DaemonConfig.from_dict(doc)
+
+
+@pytest.mark.parametrize("override", ["daemon.status_period=1", "filter.max_imu_gap=0.1",
+                                      "mavlink.max_imu_gap=0.1", "dov.grdi=x"])
+def test_unknown_keys_give_one_style_of_error(override: str) -> None:
+    """A daemon key and an estimator key (here: the attribute name instead of the key) are
+    refused alike: section, key, and the valid keys with their units."""
+    from navd.config.daemon import DaemonConfig
+
+    section, key = override.split("=")[0].split(".")
+    with pytest.raises(ConfigError) as exc:
+        DaemonConfig.from_dict(load_config(None, [override]))
+    msg = str(exc.value)
+    assert msg.startswith(f"[{section}] unknown key {key!r}; expected one of: "), msg
+    if section != "dov":
+        assert "max_imu_gap_ms" in msg or "status_period_s" in msg, msg

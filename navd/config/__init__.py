@@ -24,6 +24,7 @@ from navd.config.load import (
     build_section,
     load_config,
     parse_override,
+    set_override,
     setting,
     toml_keys,
 )
@@ -44,6 +45,7 @@ __all__ = [
     "build_section",
     "load_config",
     "parse_override",
+    "set_override",
     "setting",
     "toml_keys",
 ]

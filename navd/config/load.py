@@ -27,18 +27,33 @@ class ConfigError(ValueError):
     """A configuration value is missing, unknown or of the wrong type/unit."""
 
 
-def parse_override(text: str) -> tuple[list[str], Any]:
+def parse_override(text: str, *, min_depth: int = 2) -> tuple[list[str], Any]:
+    """``"a.b.c=value"`` -> (["a", "b", "c"], value): the value parsed as a TOML literal (a
+    bare word is taken as a string).  ``min_depth``: fewest dotted parts (2: section.key)."""
     if "=" not in text:
         raise ConfigError(f"override {text!r} is not of the form section.key=value")
     key, raw = text.split("=", 1)
     parts = key.strip().split(".")
-    if len(parts) < 2 or not all(parts):
+    if len(parts) < min_depth or not all(parts):
         raise ConfigError(f"override key {key!r} must be section.key")
     try:
         value = tomllib.loads(f"v = {raw.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw.strip()
     return parts, value
+
+
+def set_override(data: dict[str, Any], parts: list[str], value: Any) -> None:
+    """Set ``data[parts[0]]...[parts[-1]] = value``, creating tables on the way."""
+    if not parts or not all(parts):
+        raise ConfigError(f"{'.'.join(parts)}: bad override key")
+    node = data
+    for i, p in enumerate(parts[:-1]):
+        node = node.setdefault(p, {})
+        if not isinstance(node, dict):
+            raise ConfigError(f"{'.'.join(parts[: i + 1])}: is not a table, cannot set "
+                              f"{'.'.join(parts)}")
+    node[parts[-1]] = value
 
 
 def load_config(path: str | Path | None, overrides: list[str] | None = None) -> dict[str, Any]:
@@ -59,12 +74,10 @@ def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any
     """Set each ``section.key=value`` in the TOML tables ``data`` (in place); returns it."""
     for ov in overrides:
         parts, value = parse_override(ov)
-        node = data
-        for p in parts[:-1]:
-            node = node.setdefault(p, {})
-            if not isinstance(node, dict):
-                raise ConfigError(f"override {ov!r}: {p} is not a table")
-        node[parts[-1]] = value
+        try:
+            set_override(data, parts, value)
+        except ConfigError as exc:
+            raise ConfigError(f"override {ov!r}: {exc}") from None
     return data
 
 
