@@ -4,7 +4,7 @@ Scenario ``ship_dov`` (22 N 113 E, static 600 s, 120 s to 10 m/s on course 45 de
 navigation-grade IMU at 20 Hz with single-axis rotation modulation, 18 deg/s, 300 s dwell;
 GNSS 1 Hz, 2 m / 0.03 m/s horizontal, 4 m / 0.06 m/s vertical).  The truth DOV is a
 function of *position*: sinusoids of the distance along the course
-(:class:`~navd.core.aiding.dov.AlongTrackSinusoid`) of 20" amplitude and 360 km wavelength,
+(:class:`~firmware_sim.dov_field.AlongTrackSinusoid`) of 20" amplitude and 360 km wavelength,
 i.e. a 10 h period at cruise speed as in the seed (which drives its DOV in time; ours is
 constant while the ship is static and identical to the seed's once it cruises).  The
 scenario's own time-based DOV is switched off and the IMU increments are rebuilt from the
@@ -49,13 +49,14 @@ import numpy as np
 import numpy.typing as npt
 
 from firmware_sim import generate, load_scenario
+from firmware_sim.dov_field import AlongTrackSinusoid
 from firmware_sim.profiles import build_profile
 from firmware_sim.run import SimRun
 from firmware_sim.scenario import Scenario, ShipSpec
 from firmware_sim.sensors import corrupt_imu
 from firmware_sim.truth import build_truth
 from navd.config import EstimatorConfig, load_config
-from navd.core.aiding.dov import ARCSEC, AlongTrackSinusoid, dov_status
+from navd.core.aiding.dov import ARCSEC, dov_status
 from navd.core.earth import OMEGA_IE
 from navd.core.estimator import Estimator
 from navd.core.rotation import log_so3

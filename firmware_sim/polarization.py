@@ -32,6 +32,7 @@ import numpy as np
 import numpy.typing as npt
 
 from firmware_sim.scenario import PolarizationSpec
+from navd.core.aiding.polarization import pol_row
 from navd.core.rotation import euler_to_mat
 from navd.core.sun import sun_ned_into, utc_to_gps_s
 from navd.io import pol_wire as wire
@@ -160,3 +161,12 @@ def encode_mavlink(time_usec: int, time_gps_usec: int, aop_rad: float, dop: floa
                          msgid & 0xFFFF, msgid >> 16)
     crc = wire.crc_x25(header[1:] + payload + bytes([wire.CRC_EXTRA]))
     return header + payload + struct.pack("<H", crc)
+
+
+def predict_aop(mat_nb: npt.NDArray[np.float64], mat_sb: npt.NDArray[np.float64],
+                s_n: npt.NDArray[np.float64]) -> tuple[float, npt.NDArray[np.float64]]:
+    """(alpha_hat rad, h (3,)): the filter's predicted AoP and its attitude row
+    (:func:`navd.core.aiding.polarization.pol_row`), allocating; for tests and tools."""
+    H = np.zeros((1, 15))
+    alpha, _, _ = pol_row(H, 0, mat_nb, mat_sb, s_n)
+    return alpha, H[0, 0:3].copy()

@@ -28,9 +28,9 @@ from collections.abc import Iterable, Iterator, Mapping
 from typing import TYPE_CHECKING, Any
 
 from navd.config.aiding import DovSection, NavConfig
-from navd.core.aiding.dov import DovGridError, note_refused
+from navd.core.aiding.dov import DovField, DovGridError
 from navd.core.aiding.polarization import build_polarization
-from navd.core.estimator import DovField, Estimator, Sample
+from navd.core.estimator import Estimator, Sample
 from navd.io.dov_grid import load_from_settings
 from navd.types import GnssSample, ImuSample, NavSolution
 
@@ -64,9 +64,8 @@ def build_estimator(config: NavConfig | Mapping[str, Any]) -> Estimator:
     cfg = config if isinstance(config, NavConfig) else NavConfig.from_tables(config)
     pol = build_polarization(cfg.polarization)
     field, refused = dov_field_from_config(cfg.dov)
-    est = Estimator(cfg.estimator, dov_field=field, pol=pol)
+    est = Estimator(cfg.estimator, dov_field=field, pol=pol, dov_refused=refused)
     if refused is not None:
-        note_refused(est, refused)
         log.warning("DOV grid refused, running on normal gravity: %s", refused)
     elif field is not None:
         describe = getattr(field, "describe", None)
@@ -116,14 +115,12 @@ def solutions(est: Estimator, samples: Iterable[Sample], rate_hz: float,
 
     While a solution is being handled, ``est`` holds the state it came from (scoring reads
     the covariance there).  ``aiding``: also write one row per GNSS epoch on what the filter
-    did with it.
+    did with it (read from the estimator after the push).
     """
     sched = OutputSchedule(rate_hz)
     for s in samples:
-        if aiding is not None and isinstance(s, GnssSample):
-            aiding.before(est, s)
-            advanced = est.push(s)
-            aiding.after(est, s, advanced)
-            continue
-        if output_instant(est, s) and sched.due(est.t_us):
-            yield est.solution()
+        if output_instant(est, s):
+            if sched.due(est.t_us):
+                yield est.solution()
+        elif aiding is not None and isinstance(s, GnssSample):
+            aiding.after(est, s)

@@ -12,11 +12,11 @@ import numpy.typing as npt
 import pytest
 
 from firmware_sim.alloc import measure_steps
+from firmware_sim.dov_field import AlongTrackSinusoid
 from navd.config import ConfigError, DovSection, build_section, load_config
 from navd.core.aiding.dov import (
     ARCSEC,
     MGAL,
-    AlongTrackSinusoid,
     DovGrid,
     DovGridError,
     dov_status,

@@ -16,12 +16,13 @@ import numpy as np
 import numpy.typing as npt
 
 from firmware_sim import SimRun, generate, load_scenario
+from firmware_sim.dov_field import AlongTrackSinusoid
 from firmware_sim.profiles import build_profile
 from firmware_sim.scenario import Scenario
 from firmware_sim.sensors import corrupt_imu
 from firmware_sim.truth import build_truth
 from navd.config import EstimatorConfig, load_config
-from navd.core.aiding.dov import ARCSEC, MGAL, AlongTrackSinusoid, DovGrid
+from navd.core.aiding.dov import ARCSEC, MGAL, DovGrid
 from navd.core.estimator import DovField, Estimator
 from navd.core.rotation import log_so3
 from navd.core.strapdown import strapdown_step

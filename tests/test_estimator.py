@@ -368,7 +368,7 @@ def test_heading_is_held_at_rest_without_a_heading_source() -> None:
 
 
 def test_heading_hold_is_off_for_a_gyro_that_can_gyrocompass() -> None:
-    assert Estimator(cfg("imu.gyro_bias_sd_deg_per_h=0.01"))._hold_enabled is False
-    assert Estimator(cfg("imu.gyro_bias_sd_deg_per_h=12"))._hold_enabled is True
+    assert Estimator(cfg("imu.gyro_bias_sd_deg_per_h=0.01")).gnss.hold_enabled is False
+    assert Estimator(cfg("imu.gyro_bias_sd_deg_per_h=12")).gnss.hold_enabled is True
     assert Estimator(cfg("imu.gyro_bias_sd_deg_per_h=12",
-                         "heading.hold_static=false"))._hold_enabled is False
+                         "heading.hold_static=false")).gnss.hold_enabled is False

@@ -8,7 +8,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from firmware_sim.polarization import parse_utc, rayleigh_dop, simulate_polarization
+from firmware_sim.polarization import (
+    parse_utc,
+    predict_aop,
+    rayleigh_dop,
+    simulate_polarization,
+)
 from firmware_sim.run import generate
 from firmware_sim.scenario import PolarizationSpec, ScenarioError, load_scenario
 from navd.config import (
@@ -23,7 +28,6 @@ from navd.core.aiding.polarization import (
     PolarizationAiding,
     _wrap_half_pi,
     build_polarization,
-    predict_aop,
 )
 from navd.core.estimator import Estimator
 from navd.core.rotation import euler_to_mat, exp_so3, log_vec, mat_to_euler

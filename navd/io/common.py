@@ -1,5 +1,6 @@
-"""What every input adapter shares: plausibility limits, the rate -> increment conversion,
-and the reject path (count + rate-limited log line).
+"""What every input adapter shares: plausibility checks (the estimator's own,
+:mod:`navd.core.plausible`), the rate -> increment conversion, and the reject path (count +
+rate-limited log line).
 
 Rate-type IMU messages (MAVLink HIGHRES_IMU / SCALED_IMU / RAW_IMU, DroneCAN RawIMU without
 integrals) carry a point sample of angular rate and specific force.  The estimator wants
@@ -15,34 +16,21 @@ import logging
 import math
 import time
 from collections.abc import Callable, Hashable
-from dataclasses import dataclass
 
+from navd.core.plausible import Limits, gnss_reason, imu_reason
 from navd.diag import Counters, RateLimitedLog
 from navd.types import GnssSample, ImuSample, PolSample
-from navd.units import G0 as G0_MPS2
 
 Sample = ImuSample | GnssSample | PolSample
 SampleCallback = Callable[[Sample], None]
+
+__all__ = ["Limits", "RateIntegrator", "Rejector", "Sample", "SampleCallback", "all_finite",
+           "gnss_reject_reason", "imu_reject_reason", "monotonic_us"]
 
 
 def monotonic_us() -> int:
     """Local receive clock, integer microseconds (never jumps with wall-clock changes)."""
     return time.monotonic_ns() // 1000
-
-
-@dataclass(frozen=True, slots=True)
-class Limits:
-    """Values beyond these are wire garbage or a broken sensor, not motion.
-
-    Defaults sit above any MEMS full scale in use (±32 g, ±2000 °/s = 34.9 rad/s is the
-    largest common gyro range) so a saturated but honest sensor still passes.
-    """
-
-    max_accel_mps2: float = 50.0 * G0_MPS2
-    max_gyro_rps: float = 35.0
-    min_alt_m: float = -2000.0
-    max_alt_m: float = 100_000.0
-    max_speed_mps: float = 1000.0
 
 
 class Rejector:
@@ -84,14 +72,9 @@ def all_finite(*values: float) -> bool:
 def imu_reject_reason(
     gx: float, gy: float, gz: float, ax: float, ay: float, az: float, limits: Limits
 ) -> str | None:
-    """Reason to drop one IMU point sample (rad/s, m/s^2), or None if plausible."""
-    if not all_finite(gx, gy, gz, ax, ay, az):
-        return "imu_nonfinite"
-    if gx * gx + gy * gy + gz * gz > limits.max_gyro_rps**2:
-        return "imu_absurd_gyro"
-    if ax * ax + ay * ay + az * az > limits.max_accel_mps2**2:
-        return "imu_absurd_accel"
-    return None
+    """Reason to drop one IMU point sample (rad/s, m/s^2), or None if plausible
+    (:func:`navd.core.plausible.imu_reason`)."""
+    return imu_reason(gx, gy, gz, ax, ay, az, limits.max_gyro_rps, limits.max_accel_mps2)
 
 
 def gnss_reject_reason(
@@ -101,21 +84,14 @@ def gnss_reject_reason(
     vel_ned: tuple[float, float, float],
     limits: Limits,
 ) -> str | None:
-    """Reason to drop one GNSS fix, or None.
+    """Reason to drop one GNSS fix, or None (:func:`navd.core.plausible.gnss_reason`; its
+    limits are constants, ``limits`` is accepted for the adapters' call sites).
 
     Velocity components may be NaN on purpose (the message does not carry them); only
     finite ones are range-checked.  Position must be finite.
     """
-    if not all_finite(lat_deg, lon_deg, alt_m):
-        return "gnss_nonfinite"
-    if not (-90.0 <= lat_deg <= 90.0 and -180.0 <= lon_deg <= 180.0):
-        return "gnss_latlon_range"
-    if not (limits.min_alt_m <= alt_m <= limits.max_alt_m):
-        return "gnss_absurd_alt"
-    sq = sum(v * v for v in vel_ned if math.isfinite(v))
-    if sq > limits.max_speed_mps**2 or any(math.isinf(v) for v in vel_ned):
-        return "gnss_absurd_velocity"
-    return None
+    return gnss_reason(math.radians(lat_deg), math.radians(lon_deg), alt_m, vel_ned[0],
+                       vel_ned[1], vel_ned[2])
 
 
 class RateIntegrator:

@@ -41,14 +41,14 @@ with xi' the rate of change of xi along the track; the filter attenuates it late
 from __future__ import annotations
 
 import math
-import weakref
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
 from navd.core._jit import jit
 from navd.core.earth import OMEGA_IE, radii
+from navd.types import GnssSample
 from navd.units import ARCSEC
 
 if TYPE_CHECKING:
@@ -262,87 +262,54 @@ class DovGrid:
                 f"{', with dg' if self.has_dg else ''}")
 
 
-@jit
-def along_track_eval(params: Arr, lat: float, lon: float, out: Arr) -> None:
-    """Kernel of :class:`AlongTrackSinusoid` (params as built there)."""
-    dlon = (lon - params[1] + math.pi) % TWO_PI - math.pi
-    s = params[3] * (lat - params[0]) + params[4] * dlon
-    out[0] = params[5] + params[6] * math.sin(TWO_PI * s / params[7] + params[8])
-    out[1] = params[9] + params[10] * math.sin(TWO_PI * s / params[11] + params[12])
-    out[2] = params[13]
+# ------------------------------------------------------------------------------ the aid
 
-
-@jit
-def _along_track_many(params: Arr, pos: Arr, out: Arr) -> None:
-    for k in range(pos.shape[0]):
-        along_track_eval(params, pos[k, 0], pos[k, 1], out[k])
-
-
-class AlongTrackSinusoid:
-    """Analytic DOV field (tests, benchmarks): sinusoids of the distance along a course.
-
-    ``s = R_M(L0) (L - L0) cos c + R_N(L0) cos L0 (lambda - lambda0) sin c`` is the distance
-    (m) from the origin projected on the course ``c`` (a local flat-earth coordinate, exact
-    enough over hundreds of km for a synthetic field); then::
-
-        xi  = xi_offset  + xi_amp  sin(2 pi s / xi_wavelength  + xi_phase)
-        eta = eta_offset + eta_amp sin(2 pi s / eta_wavelength + eta_phase)
-        dg  = constant
-
-    A vehicle on that course at speed v sees sinusoids in time of period wavelength / v, as
-    in seed 002's simulation.  Defined everywhere (never off grid).  Angles in rad.
-    """
-
-    def __init__(self, lat0_rad: float, lon0_rad: float, course_rad: float, *,
-                 xi_amp_rad: float = 0.0, xi_wavelength_m: float = 360e3,
-                 xi_phase_rad: float = 0.0, xi_offset_rad: float = 0.0,
-                 eta_amp_rad: float = 0.0, eta_wavelength_m: float = 360e3,
-                 eta_phase_rad: float = 0.0, eta_offset_rad: float = 0.0,
-                 dg_mps2: float = 0.0) -> None:
-        if not (xi_wavelength_m > 0.0 and eta_wavelength_m > 0.0):
-            raise ValueError("wavelengths must be > 0 m")
-        r_m, r_n = radii(lat0_rad)
-        self.source = "analytic along-track sinusoid"
-        self.params = np.array([
-            lat0_rad, lon0_rad, course_rad, r_m * math.cos(course_rad),
-            r_n * math.cos(lat0_rad) * math.sin(course_rad),
-            xi_offset_rad, xi_amp_rad, xi_wavelength_m, xi_phase_rad,
-            eta_offset_rad, eta_amp_rad, eta_wavelength_m, eta_phase_rad, dg_mps2])
+class DovField(Protocol):
+    """A deflection-of-the-vertical model evaluated along the track (:class:`DovGrid`)."""
 
     def eval_into(self, lat_rad: float, lon_rad: float, out: Arr) -> bool:
-        along_track_eval(self.params, lat_rad, lon_rad, out)
-        return True
-
-    def eval_track(self, pos: Arr) -> Arr:
-        """(N, 3) field values at positions (N, >=2) (lat_rad, lon_rad, ...) - the very
-        kernel the estimator calls, so a simulated truth matches it bit for bit."""
-        p = np.ascontiguousarray(pos, dtype=np.float64)
-        out = np.empty((p.shape[0], 3))
-        _along_track_many(self.params, p, out)
-        return out
-
-    def describe(self) -> str:
-        p = self.params
-        return (f"{self.source}: course {math.degrees(p[2]):.1f} deg, xi "
-                f"{p[6] / ARCSEC:.3g}\" / {p[7] / 1e3:.4g} km, eta {p[10] / ARCSEC:.3g}\" / "
-                f"{p[11] / 1e3:.4g} km")
+        """Write (xi_rad, eta_rad, dg_d_mps2) into ``out`` (3,); False when off the model's
+        area (``out`` is then zeroed: normal gravity)."""
+        ...
 
 
-# ------------------------------------------------------------------------------ status
+class DovAid:
+    """The estimator's gravity model: evaluates the DOV field into ``est.dov`` at every GNSS
+    epoch (and at the start), so the mechanization uses the deflection of the present
+    position.  Always present; with no field (off, or refused) it does nothing.
 
-# Why an estimator runs on normal gravity although a DOV model was configured (set by
-# navd.pipeline.build_estimator when it refuses a grid); weak so estimators are not kept alive.
-_REFUSED: weakref.WeakKeyDictionary[Estimator, str] = weakref.WeakKeyDictionary()
+    Attributes:
+        field: the model, or None (normal gravity).
+        refused: why a configured model was refused (set by ``build_estimator``), or None.
+        on_grid: the last evaluation was inside the model's area.
+    """
 
+    name = "dov"
+    consumes = GnssSample
 
-def note_refused(est: Estimator, reason: str) -> None:
-    """Record that ``est`` runs on normal gravity because its DOV model was refused."""
-    _REFUSED[est] = reason
+    def __init__(self, field: DovField | None, refused: str | None = None) -> None:
+        self.field = field
+        self.refused = refused
+        self.on_grid = False
 
+    def reset(self) -> None:
+        pass
 
-def refused_reason(est: Estimator) -> str | None:
-    """The reason recorded by :func:`note_refused`, or None."""
-    return _REFUSED.get(est)
+    def start(self, est: Estimator, fix: GnssSample) -> None:
+        if self.field is not None:
+            self.on_grid = self.field.eval_into(fix.lat_rad, fix.lon_rad, est.dov)
+
+    def fuse(self, est: Estimator, g: GnssSample) -> bool:
+        """Re-evaluate at the present position (not a measurement: never corrects)."""
+        if self.field is not None:
+            self.on_grid = self.field.eval_into(float(est.pos[0]), float(est.pos[1]), est.dov)
+            if not self.on_grid:
+                est.counters["dov_off_grid"] += 1
+        return False
+
+    def status(self, est: Estimator) -> dict[str, object]:
+        return {"dov_model": ("off" if self.field is None else
+                              "on grid" if self.on_grid else "off grid: normal gravity")}
 
 
 def predicted_effect(xi_rad: float, eta_rad: float, xi_rate_rps: float,
@@ -386,9 +353,9 @@ def dov_status(est: Estimator, rate_window_s: float = 60.0) -> dict[str, object]
         dov_uncomp_heading_arcsec: the early yaw error eta tan L + xi' sec L / omega_ie.
         Predictions are None while no DOV value is known (model off, refused, off grid).
     """
-    field = est.dov_field
+    field = est.dov_aid.field
     xi, eta, dg = (float(v) for v in est.dov)
-    reason = refused_reason(est)
+    reason = est.dov_aid.refused
     out: dict[str, object] = {
         "dov_xi_arcsec": xi / ARCSEC, "dov_eta_arcsec": eta / ARCSEC, "dov_dg_mgal": dg / MGAL,
         "dov_xi_rate_arcsec_per_h": None, "dov_uncomp_tilt_arcsec": None,
@@ -400,7 +367,7 @@ def dov_status(est: Estimator, rate_window_s: float = 60.0) -> dict[str, object]
         return out
     src_fn = getattr(field, "describe", None)
     src = str(src_fn()) if callable(src_fn) else type(field).__name__
-    if not est.dov_on_grid:
+    if not est.dov_aid.on_grid:
         out["dov_model"] = (f"off grid: normal gravity ({src})"
                             if est.counters.get("dov_off_grid", 0) > 0
                             else f"waiting for the first GNSS epoch ({src})")

@@ -14,16 +14,38 @@ chi shares its noise with the velocity measurement: with ``J = [-vE, vN, 0]/|v_h
 the joint covariance of (velocity, course) innovations is ``[[R_v, R_v J^T], [J R_v,
 J R_v J^T + s_beta^2]]``, where s_beta models sideslip/crab.  The block is appended to the
 velocity block (row 3) and whitened jointly in :func:`navd.core.kalman.gated_update`.
+
+:class:`CourseHeading` decides when heading ~ course (docs/design.md §4), fuses the course
+with the GNSS velocity, aligns or resets the yaw to the course, and reports its status.
 """
 
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
+from navd.config import EstimatorConfig
+from navd.core import state as st
 from navd.core._jit import jit
+from navd.core.aiding.base import (
+    ACCEPTED,
+    INNOV_COURSE,
+    INNOV_FLAG,
+    INNOV_NIS,
+    INNOV_VEL,
+    NOT_TRIED,
+    REJECTED,
+    SINGULAR,
+)
+from navd.core.chi2 import chi2_quantile
+from navd.core.rotation import exp_into, mat_to_euler, mul3_into
+from navd.types import GnssSample
+
+if TYPE_CHECKING:
+    from navd.core.estimator import Estimator
 
 Arr = npt.NDArray[np.float64]
 
@@ -87,3 +109,186 @@ def course_row(H: Arr, z: Arr, R: Arr, row: int, mat_nb: Arr, rate_b: Arr, lever
 def course_sd(speed_sd_mps: float, speed_h_mps: float) -> float:
     """1-sigma of the course from a per-axis speed accuracy, rad (sigma_v / |v_h|)."""
     return speed_sd_mps / speed_h_mps
+
+
+class CourseHeading:
+    """GNSS course as heading, joined to the GNSS velocity update (part of the GNSS aid).
+
+    Attributes:
+        status: why the course is or is not used now (the status record's
+            ``course_update``).
+        last_used_t_us: time of validity of the last course update applied, -1 before.
+    """
+
+    def __init__(self, cfg: EstimatorConfig) -> None:
+        c = cfg
+        self.cfg = cfg
+        p = c.filter.gate_prob
+        self._gate1 = chi2_quantile(p, 1)
+        self._gate3 = chi2_quantile(p, 3)
+        self._gate4 = chi2_quantile(p, 4)
+        self._gating = c.filter.robust != "none"
+        self.enabled = c.filter.mode == "completed" and (
+            c.filter.profile == "ground"
+            or (c.filter.profile == "fixed_wing" and c.heading.crab_sd > 0.0))
+        self.sd_beta = (c.heading.sideslip_sd if c.filter.profile == "ground"
+                        else c.heading.crab_sd)
+        self.status = "off"
+        self.last_used_t_us = -1
+        self.rejects = 0
+
+    def reset(self) -> None:
+        self.rejects = 0
+
+    def usable(self, est: Estimator, g: GnssSample) -> bool:
+        """Whether heading ~ course now (docs/design.md §4); sets :attr:`status`."""
+        c = self.cfg
+        if not self.enabled:
+            self.status = ("disabled: multirotor profile (course is not heading)"
+                           if c.filter.profile == "multirotor" else
+                           "disabled: traditional mode" if c.filter.mode == "traditional"
+                           else "disabled: fixed_wing without crab allowance")
+            return False
+        speed = math.hypot(g.vel_n, g.vel_e)
+        if speed < c.heading.min_speed:
+            self.status = "waiting: speed below threshold"
+            return False
+        r = est.rate_b
+        m = est.mat_nb
+        yaw_rate = m[2, 0] * r[0] + m[2, 1] * r[1] + m[2, 2] * r[2]
+        if abs(yaw_rate) > c.heading.max_yaw_rate:
+            self.status = "waiting: yaw rate too high"
+            return False
+        if abs(yaw_rate) * speed > c.heading.max_lat_accel:
+            self.status = "waiting: lateral acceleration too high"
+            return False
+        # Backwards motion in body x is reversing only at reversing speeds; faster than that
+        # it means our yaw is off by more than 90 degrees, which the course must correct.
+        vx = m[0, 0] * g.vel_n + m[1, 0] * g.vel_e + m[2, 0] * g.vel_d
+        if vx < 0.0 and speed < c.heading.max_reverse_speed:
+            self.status = "waiting: reversing"
+            return False
+        self.status = "active"
+        return True
+
+    def _fill_velocity(self, est: Estimator, g: GnssSample, s_sd: float) -> tuple[int, bool]:
+        """Velocity rows 0..2 linearised at the fix's time; (m, swapped: restore after)."""
+        # no vertical velocity reported: use our own with a variance that ignores it
+        vd, sd_v = (g.vel_d, s_sd) if math.isfinite(g.vel_d) else (float(est.vel_n[2]), 1e3)
+        swapped = est.state_at(g.t_us) is True
+        m = st.fill_velocity(est.buf, g.vel_n, g.vel_e, vd, s_sd, sd_v)
+        return m, swapped
+
+    def _velocity_alone(self, est: Estimator, g: GnssSample, s_sd: float, hold: int) -> None:
+        m, swapped = self._fill_velocity(est, g, s_sd)
+        if swapped:
+            est.state_restore()
+        est.record_innovation(INNOV_VEL, 0, 3, est.fuse_block(m, self._gate3, "vel", hold))
+
+    def fuse_with_velocity(self, est: Estimator, g: GnssSample, s_sd: float,
+                           hold: int) -> None:
+        """The GNSS velocity update, with the course row joined when :meth:`usable`.
+
+        ``s_sd``: per-axis horizontal velocity sigma, m/s; ``hold``: consider-state index
+        for the velocity-alone update (-1: none).
+        """
+        cnt = est.counters
+        H, z, P = est.meas_H, est.meas_z, est.P
+        cfg = self.cfg
+        use_course = self.usable(est, g)
+        if (not use_course and not est.heading_aligned
+                and cfg.init.heading_source == "gnss_course"
+                and cfg.filter.profile != "multirotor"
+                and math.hypot(g.vel_n, g.vel_e) >= cfg.heading.align_speed):
+            # Without course updates the first fast course still beats a yaw of zero as a
+            # starting point (crab makes it coarse: keep the yaw variance wide).
+            self.align_yaw(est, g.vel_n, g.vel_e, s_sd, extra_sd=cfg.init.heading_sd)
+        m, swapped = self._fill_velocity(est, g, s_sd)
+        if not use_course:
+            if swapped:
+                est.state_restore()
+            est.record_innovation(INNOV_VEL, 0, 3,
+                                  est.fuse_block(m, self._gate3, "vel", hold))
+            self.check_observed(est)
+            return
+        # lever-arm-free GNSS velocity for the course, v_gnss - C (w x l); the velocity
+        # innovation just computed is v_hat + C (w x l) - v_gnss
+        vn_c = g.vel_n - (z[0] - (est.vel_n[0] - g.vel_n))
+        ve_c = g.vel_e - (z[1] - (est.vel_n[1] - g.vel_e))
+        if not est.heading_aligned:
+            if swapped:
+                est.state_restore()
+            self.align_yaw(est, vn_c, ve_c, s_sd)
+            return
+        # course alone first: its own gate decides whether it joins the velocity update
+        st.course_row(est.buf, 3, vn_c, ve_c, s_sd, self.sd_beta)
+        if swapped:
+            est.state_restore()
+        zc = z[3]
+        sc = H[3, 0] * H[3, 0] * P[0, 0] + H[3, 1] * H[3, 1] * P[1, 1]
+        sc += 2.0 * H[3, 0] * H[3, 1] * P[0, 1] + P[2, 2]
+        sc -= 2.0 * (H[3, 0] * P[0, 2] + H[3, 1] * P[1, 2])
+        sc += s_sd * s_sd / (vn_c * vn_c + ve_c * ve_c) + self.sd_beta**2
+        course_ok = (not self._gating) or zc * zc / sc <= self._gate1
+        rec = est.innov[INNOV_COURSE]
+        rec[0] = zc
+        rec[INNOV_NIS] = zc * zc / sc
+        if course_ok:
+            nis = est.fuse_block(4, self._gate4, "vel_course")
+            est.record_innovation(INNOV_VEL, 0, 3, nis)
+            if nis >= 0.0:
+                rec[INNOV_FLAG] = ACCEPTED
+                cnt["course_accepted"] += 1
+                self.rejects = 0
+                self.last_used_t_us = g.t_us
+                return
+            # the joint block failed: fall back to velocity alone
+            rec[INNOV_FLAG] = REJECTED if nis != -math.inf else SINGULAR
+            self._velocity_alone(est, g, s_sd, hold)
+            return
+        rec[INNOV_FLAG] = REJECTED
+        cnt["course_rejected"] += 1
+        self.rejects += 1
+        self._velocity_alone(est, g, s_sd, hold)
+        if self.rejects >= cfg.heading.reset_after:
+            # persistently inconsistent: the yaw is wrong beyond the linear model; reset it
+            self.align_yaw(est, vn_c, ve_c, s_sd)
+            cnt["heading_reset"] += 1
+
+    def note_not_tried(self, est: Estimator, g: GnssSample) -> None:
+        """Course record before the epoch's updates: not tried, with wrap(psi_hat - chi) of
+        the raw GNSS velocity for monitoring (overwritten when the course is tried)."""
+        rec = est.innov[INNOV_COURSE]
+        rec[INNOV_FLAG] = NOT_TRIED
+        if math.hypot(g.vel_n, g.vel_e) >= 1.0:
+            m = est.mat_nb
+            yaw = math.atan2(m[1, 0], m[0, 0])
+            rec[0] = (yaw - math.atan2(g.vel_e, g.vel_n) + math.pi) % (2.0 * math.pi) - math.pi
+
+    def check_observed(self, est: Estimator) -> None:
+        """Flag heading aligned once manoeuvres made the yaw observable (sigma small)."""
+        if not est.heading_aligned and est.P[2, 2] < self.cfg.init.aligned_sd**2:
+            est.heading_aligned = True
+            est.counters["heading_aligned_by_observability"] += 1
+
+    def align_yaw(self, est: Estimator, vn: float, ve: float, s_sd: float,
+                  extra_sd: float = 0.0) -> None:
+        """Rotate the attitude about down so yaw equals the course of (vn, ve) m/s; reset
+        the yaw covariance (row/column 2 of P) to the course's uncertainty."""
+        _, _, yaw = mat_to_euler(est.mat_nb)
+        chi = math.atan2(ve, vn)
+        d = (yaw - chi + math.pi) % (2.0 * math.pi) - math.pi
+        e = est.work[4]
+        t = est.work[5]
+        exp_into(e, 0.0, 0.0, -d)
+        mul3_into(t, e, est.mat_nb)
+        est.mat_nb[:, :] = t
+        P = est.P
+        P[2, :] = 0.0
+        P[:, 2] = 0.0
+        sd = s_sd / math.hypot(vn, ve)
+        P[2, 2] = sd * sd + self.sd_beta**2 + (1.0 * math.pi / 180.0) ** 2 + extra_sd**2
+        self.rejects = 0
+        if not est.heading_aligned:
+            est.counters["heading_aligned_from_course"] += 1
+        est.heading_aligned = True

@@ -49,17 +49,18 @@ import numpy.typing as npt
 
 from navd.config.aiding import PolarizationSection
 from navd.core._jit import jit
+from navd.core.aiding.base import INNOV_POL
 from navd.core.chi2 import chi2_quantile
 from navd.core.rotation import euler_to_mat_into
 from navd.core.sun import sun_ned_into
-from navd.types import PolSample
+from navd.types import GnssSample, PolSample
 
 if TYPE_CHECKING:
     from navd.core.estimator import Estimator
 
 Arr = npt.NDArray[np.float64]
 
-__all__ = ["PolarizationAiding", "build_polarization", "pol_row", "predict_aop"]
+__all__ = ["PolarizationAiding", "build_polarization", "pol_row"]
 
 
 @jit
@@ -109,13 +110,6 @@ def pol_row(H: Arr, row: int, mat_nb: Arr, mat_sb: Arr, s_n: Arr) -> tuple[float
     return alpha, rho2, -sz
 
 
-def predict_aop(mat_nb: Arr, mat_sb: Arr, s_n: Arr) -> tuple[float, Arr]:
-    """Convenience (allocates): (alpha_hat, h (3,)) for tests and tools."""
-    H = np.zeros((1, 15))
-    alpha, _, _ = pol_row(H, 0, mat_nb, mat_sb, s_n)
-    return alpha, H[0, 0:3].copy()
-
-
 def _wrap_half_pi(x: float) -> float:
     """Wrap to [-pi/2, pi/2): the AoP is an axis, not a direction."""
     return x - math.pi * math.floor(x / math.pi + 0.5)
@@ -124,7 +118,7 @@ def _wrap_half_pi(x: float) -> float:
 class PolarizationAiding:
     """The estimator's polarization aid (``Estimator(cfg, pol=PolarizationAiding(...))``).
 
-    Owns its scratch arrays; :meth:`update` allocates no ndarray.
+    Owns its scratch arrays; :meth:`fuse` allocates no ndarray.
     """
 
     def __init__(self, cfg: PolarizationSection) -> None:
@@ -145,36 +139,51 @@ class PolarizationAiding:
         self.last_nis = math.nan
         self.last_innovation = math.nan
 
-    # ------------------------------------------------------------------ update
-    def update(self, est: Estimator, sample: PolSample) -> None:
-        """Fuse one reading into ``est`` or count why not (never raises on bad input)."""
+    # ------------------------------------------------------------------ the aid
+    name = "pol"
+    consumes = PolSample
+
+    def reset(self) -> None:
+        pass
+
+    def start(self, est: Estimator, fix: GnssSample) -> None:
+        pass
+
+    def status(self, est: Estimator) -> dict[str, object]:
+        return {}
+
+    def fuse(self, est: Estimator, sample: PolSample) -> bool:
+        """Fuse one reading into ``est`` or count why not (never raises on bad input);
+        True when accepted."""
         cnt = est.counters
+        # reported from the first reading that reaches the aid on, 0 included
+        cnt.setdefault("pol_accepted", 0)
         a = sample.aop_rad
         dop = sample.dop
         if not (math.isfinite(a) and 0.0 <= a < math.pi and math.isfinite(dop)
                 and 0.0 <= dop <= 1.0):
             cnt["pol_bad_input"] += 1
-            return
+            return False
         if abs(est.t_us - sample.t_us) > self.max_age_us:
             cnt["pol_too_old" if sample.t_us < est.t_us else "pol_from_future"] += 1
-            return
+            return False
         if dop < self.dop_min:
             cnt["pol_low_dop"] += 1
-            return
+            return False
         s_n = self.s_n
         pos = est.pos
         if not sun_ned_into(s_n, sample.utc_unix_s, float(pos[0]), float(pos[1]),
                             float(pos[2])):
             cnt["pol_bad_time"] += 1
-            return
+            return False
         if -s_n[2] < self.cos_zenith_max:
             cnt["pol_sun_too_low"] += 1
-            return
+            return False
         H = est.meas_H
         swapped = est.state_at(sample.t_us)
         if swapped is None:
             cnt["pol_too_old"] += 1
-            return
+            return False
         try:
             # a late reading is compared with the attitude of its own time: in a 20 deg/s
             # turn, 50 ms of transport delay would otherwise be a 1 deg AoP error
@@ -186,7 +195,7 @@ class PolarizationAiding:
             cnt["pol_delayed"] += 1
         if rho2 < self.rho2_min or rho2 <= 0.0:
             cnt["pol_sun_near_boresight"] += 1
-            return
+            return False
         z = _wrap_half_pi(alpha_hat - a)
         sd = self.sigma
         if self.sigma_dop_ref > dop:
@@ -195,6 +204,8 @@ class PolarizationAiding:
         est.meas_R[0, 0] = sd * sd
         self.last_innovation = z
         self.last_nis = est.fuse_block(1, self.gate, "pol")
+        est.record_innovation(INNOV_POL, 0, 1, self.last_nis)
+        return self.last_nis >= 0.0
 
 
 def build_polarization(cfg: PolarizationSection | None) -> PolarizationAiding | None:

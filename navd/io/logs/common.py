@@ -25,8 +25,15 @@ from typing import TYPE_CHECKING, TextIO
 import numpy as np
 import numpy.typing as npt
 
-from navd.core.earth import radii
-from navd.core.rotation import mat_to_euler
+from navd.core.aiding.base import (
+    ACCEPTED,
+    INNOV_COURSE,
+    INNOV_FLAG,
+    INNOV_POS,
+    INNOV_T,
+    INNOV_VEL,
+    REJECTED,
+)
 from navd.diag import Counters, RateLimitedLog
 from navd.io.common import RateIntegrator, Rejector
 from navd.io.csv_replay import ReadReport, merge, read_gnss, read_imu
@@ -334,59 +341,43 @@ AIDING_COLS = (
 class AidingWriter:
     """One row per GNSS epoch pushed after navigation started: what the filter did with it.
 
-    ``course`` is ``used`` (the course update was applied at this epoch), ``rejected``
-    (tried and refused: by its own gate, or the joint velocity + course block failed and
-    velocity went alone), or ``off`` (not tried: disabled, waiting for speed, yaw
-    rate, ...; ``course_status`` says why).  Counters are cumulative.  Innovations are GNSS
-    minus the filter's prediction just before the update (NED metres and m/s; lever arm and
-    latency not removed), and ``innov_course_deg`` is wrap(yaw - course), the quantity the
-    completed heading update uses; biases are the estimates after the update.
+    Read from the estimator right after the push (``Estimator.innov``, see
+    :mod:`navd.core.aiding.base`).  ``course`` is ``used`` (the course update was applied at
+    this epoch), ``rejected`` (tried and refused: by its own gate, or the joint velocity +
+    course block failed and velocity went alone), or ``off`` (not tried: disabled, waiting
+    for speed, yaw rate, ...; ``course_status`` says why).  Counters are cumulative.
+    Innovations are GNSS minus the filter's prediction just before the update, as the filter
+    formed them (NED metres and m/s at the fix's time of validity, lever arm included; the
+    negated ``z`` of the models), empty (nan) for a measurement not formed at this epoch;
+    ``innov_vel_d_mps`` is nan when the fix has no vertical velocity.  ``innov_course_deg``
+    is wrap(yaw - course), the quantity the completed heading update uses (of the raw GNSS
+    velocity when the course was not tried, from 1 m/s); biases are the estimates after
+    the update.
     """
 
     def __init__(self, fh: TextIO) -> None:
         self._fh = fh
         fh.write(",".join(AIDING_COLS) + "\n")
-        self._pre: tuple[float, ...] | None = None
-        self._pre_counts = (0, 0)
 
-    def before(self, est: Estimator, g: GnssSample) -> None:
-        """Call just before ``est.push(g)``."""
-        if not est.initialized:
-            self._pre = None
-            return
-        lat, lon, alt = float(est.pos[0]), float(est.pos[1]), float(est.pos[2])
-        r_m, r_n = radii(lat)
-        dn = (g.lat_rad - lat) * (r_m + alt)
-        de = (g.lon_rad - lon) * (r_n + alt) * math.cos(lat)
-        dd = -(g.alt_m - alt)
-        v = est.vel_n
-        _, _, yaw = mat_to_euler(est.mat_nb)
-        speed = math.hypot(g.vel_n, g.vel_e)
-        course = math.atan2(g.vel_e, g.vel_n) if speed > 0.0 else math.nan
-        dc = ((yaw - course + math.pi) % (2.0 * math.pi) - math.pi) if speed >= 1.0 \
-            else math.nan
-        self._pre = (speed, course * R2D, dn, de, dd, g.vel_n - float(v[0]),
-                     g.vel_e - float(v[1]), g.vel_d - float(v[2]), dc * R2D)
-        c = est.counters
-        self._pre_counts = (c.get("course_accepted", 0),
-                            c.get("course_rejected", 0) + c.get("vel_course_rejected", 0))
-
-    def after(self, est: Estimator, g: GnssSample, advanced: bool) -> None:
-        """Call just after ``est.push(g)``."""
-        if self._pre is None or not est.initialized:
+    def after(self, est: Estimator, g: GnssSample) -> None:
+        """Call just after ``est.push(g)``; writes nothing unless ``g`` reached a navigating
+        estimator."""
+        r = est.innov
+        if r[INNOV_POS, INNOV_T] != g.t_us or not est.initialized:
             return
         c = est.counters
 
         def n(name: str) -> int:
             return int(c.get(name, 0))  # .get: never add keys to the estimator's counters
 
-        if n("course_accepted") > self._pre_counts[0]:
-            course = "used"
-        elif n("course_rejected") + n("vel_course_rejected") > self._pre_counts[1]:
-            course = "rejected"
-        else:
-            course = "off"
-        pre = self._pre
+        flag = r[INNOV_COURSE, INNOV_FLAG]
+        course = "used" if flag == ACCEPTED else "rejected" if flag == REJECTED else "off"
+        speed = math.hypot(g.vel_n, g.vel_e)
+        chi = math.atan2(g.vel_e, g.vel_n) if speed > 0.0 else math.nan
+        vd = -float(r[INNOV_VEL, 2]) if math.isfinite(g.vel_d) else math.nan
+        pre = (speed, chi * R2D, -float(r[INNOV_POS, 0]), -float(r[INNOV_POS, 1]),
+               -float(r[INNOV_POS, 2]), -float(r[INNOV_VEL, 0]), -float(r[INNOV_VEL, 1]), vd,
+               float(r[INNOV_COURSE, 0]) * R2D)
         sol = est.solution()
         bg = [b * R2D * 3600.0 for b in sol.gyro_bias_rps]
         ba = [b / 9.80665e-3 for b in sol.accel_bias_mps2]
@@ -400,5 +391,3 @@ class AidingWriter:
             f"{math.degrees(g.lat_rad):.9f},{math.degrees(g.lon_rad):.9f},"
             f"{bg[0]:.4f},{bg[1]:.4f},{bg[2]:.4f},{ba[0]:.4f},{ba[1]:.4f},{ba[2]:.4f},"
             f"{sol.att_sd_rad[2] * R2D:.5f}\n")
-        self._pre = None
-

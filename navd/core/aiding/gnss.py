@@ -1,0 +1,174 @@
+"""The GNSS aid: one epoch's position, velocity and course updates (docs/design.md §3.5-§5).
+
+Per epoch, after the estimator has accepted the fix as plausible, in order and not too old:
+accuracies (receiver's or defaults, floored by config), refusal of absurd jumps (> 100 km,
+even with gating off; a run of them restarts navigation), heading hold at rest (§3.7),
+the MCTLS velocity weight (§5, ``robust = "mctls"``), the position rows
+(:mod:`gnss_position`), then the velocity rows with the course joined when heading ~ course
+(:class:`navd.core.aiding.gnss_heading.CourseHeading`).  Rows are linearised about the
+state at the fix's time of validity (``Estimator.state_at``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from navd.config import EstimatorConfig
+from navd.core import state as st
+from navd.core.aiding.base import INNOV_POS
+from navd.core.aiding.gnss_heading import CourseHeading
+from navd.core.chi2 import chi2_quantile
+from navd.core.earth import OMEGA_IE, mat_ne_into
+from navd.types import GnssSample
+
+if TYPE_CHECKING:
+    from navd.core.aiding.mctls import Mctls
+    from navd.core.estimator import Estimator
+
+_REINIT_AFTER_JUMPS = 20  # consecutive >100 km disagreements that restart navigation
+_YAW = 2  # error-state index of phi_D
+_GYROCOMPASS_USELESS_RAD = 5.0 * math.pi / 180.0
+
+# GNSS accuracies below these are treated as missing and replaced by config defaults
+_DEFAULT_H_ACC = 5.0
+_DEFAULT_V_ACC = 10.0
+_DEFAULT_VEL_ACC = 0.5
+
+
+class GnssAiding:
+    """GNSS position + velocity (+ course as heading) aid; see the module doc."""
+
+    name = "gnss"
+    consumes = GnssSample
+
+    def __init__(self, cfg: EstimatorConfig) -> None:
+        c = cfg
+        self.cfg = cfg
+        self._gate3 = chi2_quantile(c.filter.gate_prob, 3)
+        self.course = CourseHeading(cfg)
+        self._mctls: Mctls | None = None
+        if c.filter.robust == "mctls":
+            from navd.core.aiding.mctls import Mctls as _Mctls
+
+            self._mctls = _Mctls(window=c.mctls.window, order=c.mctls.order, mode="mctls")
+        self._cne = np.zeros((3, 3))
+        self._vel_ecef = np.zeros(3)
+        # Gyrocompassing at rest gives heading to gyro_bias_sd / (OMEGA_IE cos lat) at best;
+        # beyond ~5 deg (a gyro worse than ~1.3 deg/h) it is no heading source worth keeping.
+        self.hold_enabled = (c.heading.hold_static
+                              and c.imu.gyro_bias_sd > OMEGA_IE * _GYROCOMPASS_USELESS_RAD)
+        self.hold = -1  # consider-state index of this epoch's updates, -1: none
+        self._absurd_in_row = 0
+
+    def reset(self) -> None:
+        self.hold = -1
+        self._absurd_in_row = 0
+        self.course.reset()
+        if self._mctls is not None:
+            self._mctls.reset()
+
+    def start(self, est: Estimator, fix: GnssSample) -> None:
+        pass
+
+    def status(self, est: Estimator) -> dict[str, object]:
+        return {
+            "course_update": self.course.status,
+            # at rest with a MEMS gyro: GNSS fixes leave the heading alone (its sigma grows)
+            "heading_held": self.hold >= 0,
+        }
+
+    def fuse(self, est: Estimator, g: GnssSample) -> bool:
+        """One epoch; False when refused as an absurd jump (navigation may restart)."""
+        cnt = est.counters
+        c = self.cfg
+        h_sd = g.h_acc_m if g.h_acc_m > 0.0 and math.isfinite(g.h_acc_m) else _DEFAULT_H_ACC
+        v_sd = g.v_acc_m if g.v_acc_m > 0.0 and math.isfinite(g.v_acc_m) else _DEFAULT_V_ACC
+        s_sd = (g.vel_acc_mps if g.vel_acc_mps > 0.0 and math.isfinite(g.vel_acc_mps)
+                else _DEFAULT_VEL_ACC)
+        h_sd = max(h_sd, c.gnss.min_pos_sd)
+        v_sd = max(v_sd, c.gnss.min_pos_sd)
+        s_sd = max(s_sd, c.gnss.min_vel_sd)
+
+        # absurd jumps are refused even with gating off: they are not measurements of us
+        pos = est.pos
+        dn = (g.lat_rad - pos[0]) * 6.4e6
+        de = (g.lon_rad - pos[1]) * 6.4e6 * math.cos(pos[0])
+        if dn * dn + de * de > 1e10:  # 100 km
+            cnt["gnss_absurd_jump"] += 1
+            self._absurd_in_row += 1
+            if self._absurd_in_row >= _REINIT_AFTER_JUMPS:
+                # every fix for a while says we are elsewhere: it is our state that is wrong
+                est.restart("reinit_gnss_jump")
+            return False
+        self._absurd_in_row = 0
+        self.hold = _YAW if self._heading_hold(est, g) else -1
+        has_vel_h = math.isfinite(g.vel_n) and math.isfinite(g.vel_e)
+        if has_vel_h:
+            self.course.note_not_tried(est, g)
+
+        vel_scale = 1.0
+        if self._mctls is not None:
+            vel_scale = self._mctls_weight(g, s_sd)
+            if vel_scale <= 0.0:
+                cnt["vel_rejected_mctls"] += 1
+
+        if c.gnss.use_position:
+            swapped = est.state_at(g.t_us) is True
+            m = st.fill_position(est.buf, g.lat_rad, g.lon_rad, g.alt_m, h_sd, v_sd)
+            if swapped:
+                est.state_restore()
+            est.record_innovation(INNOV_POS, 0, 3,
+                                  est.fuse_block(m, self._gate3, "pos", self.hold))
+        if not has_vel_h:
+            cnt["gnss_no_velocity"] += 1
+        elif c.gnss.use_velocity and vel_scale > 0.0:
+            self.course.fuse_with_velocity(est, g, s_sd / math.sqrt(vel_scale), self.hold)
+        return True
+
+    def _heading_hold(self, est: Estimator, g: GnssSample) -> bool:
+        """Whether this epoch's fixes must leave the heading (phi_D) alone.
+
+        At rest the heading is unobservable to a gyro that cannot gyrocompass: the fixes
+        see only east-gyro-bias + earth-rate x heading, as one number.  An EKF nevertheless
+        gains heading information there, because it relinearises the gyro-bias coupling
+        (-C_b^n) about a heading that its own corrections keep moving; over 40 minutes at
+        rest the heading sigma fell from 10 to 3.6 deg while the heading error grew from 5
+        to 25 deg.  Holding phi_D as a Schmidt consider state in these updates (no gain,
+        exact cross-covariances) keeps the filter honest; heading aids (course,
+        polarization) still correct it.
+        """
+        if not self.hold_enabled:
+            return False
+        if not (math.isfinite(g.vel_n) and math.isfinite(g.vel_e)):
+            return False
+        r = est.rate_b
+        if (math.hypot(g.vel_n, g.vel_e) > self.cfg.heading.hold_max_speed
+                or math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+                > self.cfg.init.static_rate_tol):
+            return False
+        est.counters["heading_held"] += 1
+        return True
+
+    def _mctls_weight(self, g: GnssSample, s_sd: float) -> float:
+        """Feed MCTLS; return the variance divisor for this epoch's velocity (0 = skip)."""
+        mc = self._mctls
+        assert mc is not None
+        v = self._vel_ecef
+        if g.vel_ecef_mps is not None:
+            v[0], v[1], v[2] = g.vel_ecef_mps
+        else:
+            mat_ne_into(self._cne, g.lat_rad, g.lon_rad)
+            # C_e^n^T v_n
+            for i in range(3):
+                v[i] = (self._cne[0, i] * g.vel_n + self._cne[1, i] * g.vel_e
+                        + self._cne[2, i] * g.vel_d)
+        ready = mc.push(g.t_us * 1e-6, v, s_sd, g.lat_rad, g.lon_rad)
+        if not ready:
+            return 1.0
+        w = mc.newest_weight
+        if w < self.cfg.mctls.min_weight:
+            return 0.0
+        return w
