@@ -307,3 +307,29 @@ def test_a_clean_static_run_raises_no_refusal_warnings() -> None:
         est.push(s)
     assert est.counters["heading_held"] > 50 and est.heading_held
     assert {k: v for k, v in est.counters.items() if _is_refusal(k)} == {}
+
+
+def test_adapters_refuse_what_the_estimator_would_refuse() -> None:
+    """GIVEN ``[imu] max_rate_dps = 100`` (a gyro whose full scale is 100 deg/s),
+    WHEN the daemon's MAVLink decoder meets a HIGHRES_IMU sample turning at 150 deg/s,
+    THEN it refuses it at the wire as ``imu_absurd_gyro``, with the estimator's limit."""
+    from pymavlink.dialects.v20 import ardupilotmega as mav
+
+    from navd.core.plausible import Limits
+    from navd.io.mavlink import MavlinkDecoder
+
+    tables = load_config(None, ["imu.max_rate_dps=100"])
+    cfg = DaemonConfig.from_dict(tables)
+    dec = MavlinkDecoder(mavlink_input_config(cfg.mavlink, Limits.from_config(cfg.estimator.imu)))
+    enc = mav.MAVLink(None, 1, 1)
+    w = math.radians(150.0)
+    frames = [enc.highres_imu_encode(t, 0, 0, -9.8, 0, 0, w, 0, 0, 0, 0, 0, 0, 0, 0xFFFF
+                                     ).pack(enc) for t in (1000, 3000)]
+    for f in frames:
+        dec.feed_datagram(f, 0)
+    assert dec.counters["imu_absurd_gyro"] == 2
+    # the built-in limit (2000 deg/s) passes the same samples
+    dec = MavlinkDecoder(mavlink_input_config(cfg.mavlink))
+    for f in frames:
+        dec.feed_datagram(f, 0)
+    assert dec.counters["imu_absurd_gyro"] == 0

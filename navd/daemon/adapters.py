@@ -7,6 +7,7 @@ uses both, translates: SI section attributes in, each adapter's own settings dat
 from __future__ import annotations
 
 from navd.config.daemon import DronecanSection, MavlinkSection, ZenohSection
+from navd.core.plausible import Limits
 from navd.io.dronecan import DronecanConfig
 from navd.io.mavlink import MavlinkInputConfig
 from navd.io.zenoh import ZenohConfig
@@ -14,8 +15,11 @@ from navd.io.zenoh import ZenohConfig
 __all__ = ["dronecan_bus_config", "mavlink_input_config", "zenoh_session_config"]
 
 
-def mavlink_input_config(m: MavlinkSection) -> MavlinkInputConfig:
+def mavlink_input_config(m: MavlinkSection, limits: Limits | None = None) -> MavlinkInputConfig:
+    """``limits``: the estimator's ``[imu]`` plausibility limits, so a sample the adapter
+    passes is one the estimator accepts (default: the built-in limits)."""
     return MavlinkInputConfig(
+        limits=limits or Limits(),
         imu_messages=frozenset(m.imu_messages),
         gnss_messages=frozenset(m.gnss_messages),
         imu_id=None if m.imu_id < 0 else m.imu_id,
@@ -32,8 +36,10 @@ def mavlink_input_config(m: MavlinkSection) -> MavlinkInputConfig:
     )
 
 
-def dronecan_bus_config(d: DronecanSection) -> DronecanConfig:
+def dronecan_bus_config(d: DronecanSection, limits: Limits | None = None) -> DronecanConfig:
+    """``limits``: as for :func:`mavlink_input_config`."""
     return DronecanConfig(
+        limits=limits or Limits(),
         interface=d.interface,
         channel=d.channel,
         node_id=d.node_id,

@@ -27,6 +27,7 @@ import time
 from typing import ClassVar, Generic, Protocol, TypeVar
 
 from navd.config.daemon import DaemonConfig
+from navd.core.plausible import Limits
 from navd.daemon.adapters import dronecan_bus_config, mavlink_input_config
 from navd.diag import RateLimitedLog
 from navd.io.common import Sample, SampleCallback
@@ -175,7 +176,8 @@ class MavlinkInput(_DecodingInput[MavlinkDecoder, MavlinkLink]):
     async def open(self, queue: SampleQueue) -> str:
         m = self.cfg.mavlink
         clock, on_sample = _queueing(queue)
-        self.decoder = MavlinkDecoder(mavlink_input_config(m))
+        self.decoder = MavlinkDecoder(mavlink_input_config(
+            m, Limits.from_config(self.cfg.estimator.imu)))
         self.link = await MavlinkLink.open(m.listen, self.decoder, on_sample, clock_us=clock)
         rx = self.cfg.daemon.rx_buffer
         if rx:
@@ -205,7 +207,7 @@ class DronecanInput(_DecodingInput[DronecanDecoder, DronecanLink]):
     async def open(self, queue: SampleQueue) -> str:
         d = self.cfg.dronecan
         clock, on_sample = _queueing(queue)
-        bus_cfg = dronecan_bus_config(d)
+        bus_cfg = dronecan_bus_config(d, Limits.from_config(self.cfg.estimator.imu))
         self.decoder = DronecanDecoder(bus_cfg)
         self.link = await DronecanLink.open(bus_cfg, self.decoder, on_sample, clock_us=clock)
         return f"dronecan {d.interface}:{d.channel}"
