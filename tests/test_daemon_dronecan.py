@@ -96,7 +96,15 @@ async def _run_daemon(interface: str, channel: str, record: Path) -> dict[str, A
         await asyncio.sleep(0.5)  # Zenoh declaration propagation
         run = car_run(DURATION_S)
         await stream_dronecan_async(dronecan_events(run), bus, RATE_FACTOR)
-        await asyncio.sleep(0.5)
+        # the bus delivers on python-can's notifier thread: on a loaded machine the last
+        # frames reach the decoder after the stream call returns; wait until the count is
+        # still (a loss shows as a count that stops short)
+        seen, still_since = -1, loop.time()
+        while loop.time() - still_since < 0.5:
+            await asyncio.sleep(0.1)
+            n = daemon.status()["inputs"].get("dronecan", {}).get("imu_ok", 0)
+            if n != seen:
+                seen, still_since = n, loop.time()
         status = daemon.status()
         daemon.stop("test")
         rc = await asyncio.wait_for(task, 20)

@@ -26,9 +26,13 @@ class FilterSection:
     # refused and counted (imu_bad_dt); a time jump longer than this between two samples
     # is counted as imu_gap, and beyond 1 s navigation re-initialises
     max_imu_gap: float = _f(100.0, "ms")
+    # GNSS position (velocity) updates all refused by the gate for longer than this: the
+    # state, not the receiver, is wrong; reset it to GNSS (0 = never)
+    max_lockout: float = _f(5.0, "s")
 
     def validate(self) -> None:
         check(0.5 < self.gate_prob < 1.0, "filter", "gate_prob", "in (0.5, 1)")
+        check(self.max_lockout >= 0.0, "filter", "max_lockout_s", ">= 0 (0 = never reset)")
         check(self.cov_interval > 0.0, "filter", "cov_interval_ms", "> 0")
 
 

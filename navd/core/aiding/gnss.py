@@ -5,7 +5,8 @@ accuracies (receiver's or defaults, floored by config), refusal of absurd jumps 
 even with gating off; a run of them restarts navigation), heading hold at rest (§3.7),
 the MCTLS velocity weight (§5, ``robust = "mctls"``), the position rows
 (:mod:`gnss_position`), then the velocity rows with the course joined when heading ~ course
-(:class:`navd.core.aiding.gnss_heading.CourseHeading`).  Rows are linearised about the
+(:class:`navd.core.aiding.gnss_heading.CourseHeading`), then the lock-out check
+(:class:`navd.core.aiding.gnss_recovery.LockoutRecovery`).  Rows are linearised about the
 state at the fix's time of validity (``Estimator.state_at``).
 """
 
@@ -20,6 +21,7 @@ from navd.config import EstimatorConfig
 from navd.core import state as st
 from navd.core.aiding.base import INNOV_POS
 from navd.core.aiding.gnss_heading import CourseHeading
+from navd.core.aiding.gnss_recovery import LockoutRecovery
 from navd.core.chi2 import chi2_quantile
 from navd.core.earth import OMEGA_IE, mat_ne_into
 from navd.types import GnssSample
@@ -49,6 +51,7 @@ class GnssAiding:
         self.cfg = cfg
         self._gate3 = chi2_quantile(c.filter.gate_prob, 3)
         self.course = CourseHeading(cfg)
+        self.recovery = LockoutRecovery(cfg)
         self._mctls: Mctls | None = None
         if c.filter.robust == "mctls":
             from navd.core.aiding.mctls import Mctls as _Mctls
@@ -67,6 +70,7 @@ class GnssAiding:
         self.hold = -1
         self._absurd_in_row = 0
         self.course.reset()
+        self.recovery.reset()
         if self._mctls is not None:
             self._mctls.reset()
 
@@ -78,6 +82,10 @@ class GnssAiding:
             "course_update": self.course.status,
             # at rest with a MEMS gyro: GNSS fixes leave the heading alone (its sigma grows)
             "heading_held": self.hold >= 0,
+            # how long position / velocity updates have been refused (s; reset to GNSS
+            # beyond [filter] max_lockout_s)
+            "gnss_refused_s": [round(x, 2) if math.isfinite(x) else None
+                               for x in self.recovery.longest_refusal_s(est.t_us)],
         }
 
     def fuse(self, est: Estimator, g: GnssSample) -> bool:
@@ -126,6 +134,7 @@ class GnssAiding:
             cnt["gnss_no_velocity"] += 1
         elif c.gnss.use_velocity and vel_scale > 0.0:
             self.course.fuse_with_velocity(est, g, s_sd / math.sqrt(vel_scale), self.hold)
+        self.recovery.after_epoch(est, g.t_us, h_sd, v_sd, s_sd, math.isfinite(g.vel_d))
         return True
 
     def _heading_hold(self, est: Estimator, g: GnssSample) -> bool:

@@ -1,0 +1,137 @@
+"""Recovery from a GNSS lock-out: when the gate has refused every position (or velocity)
+update for longer than ``[filter] max_lockout_s``, the state is reset to GNSS.
+
+Why.  A chi-square gate trusts the filter's covariance.  When the state has drifted beyond
+what the covariance admits (a mis-stated IMU noise spec, an uncalibrated gyro, a vehicle
+the model does not describe, a receiver that re-converged somewhere else), every honest fix
+looks like an outlier and is refused, and nothing brings the state back: the filter is
+locked out for the rest of the run.  An outlier of the receiver lasts a few epochs; a
+refusal that lasts seconds says that the *state* is wrong.
+
+What.  Per GNSS epoch, after the aid has tried its updates (the estimator's innovation
+record, :mod:`navd.core.aiding.base`):
+
+position  refused for longer than ``max_lockout``: the position moves by minus the last
+          position innovation (onto the fix, lever arm included), its covariance becomes
+          the fix's accuracy with no correlation to the other states.
+velocity  likewise onto the GNSS velocity (horizontal; vertical when the receiver gives
+          it).  A velocity the filter could not follow means the attitude or the biases
+          that drove it are wrong too: the tilt, heading and bias variances grow by their
+          initial (prior) variances, so the next fixes can correct them.
+
+Each reset is counted (``reset_lockout_pos`` / ``reset_lockout_vel``), which the daemon
+logs (rate-limited) and the status record shows.  The history ring of past nominal states
+is cleared, because a delayed fix must not be linearised about a state from before the
+reset.  Zeroing rows/columns of a positive semi-definite P (a projection) and adding a
+non-negative diagonal keeps it positive semi-definite.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from navd.config import EstimatorConfig
+from navd.core import state as st
+from navd.core.aiding.base import ACCEPTED, INNOV_FLAG, INNOV_POS, INNOV_VEL, NOT_TRIED
+from navd.core.earth import radii
+
+if TYPE_CHECKING:
+    from navd.core.estimator import Estimator
+
+_POS = 6  # error-state index of dlat (then dlon, dh)
+_VEL = 3  # error-state index of dv_N
+
+
+class LockoutRecovery:
+    """Watches the GNSS updates' outcomes and resets position/velocity after a lock-out."""
+
+    def __init__(self, cfg: EstimatorConfig) -> None:
+        self.cfg = cfg
+        self._max_us = cfg.filter.max_lockout * 1e6
+        self._pos_ok_us = -1  # time of validity of the last accepted (or reset) update
+        self._vel_ok_us = -1
+
+    def reset(self) -> None:
+        self._pos_ok_us = -1
+        self._vel_ok_us = -1
+
+    def longest_refusal_s(self, t_us: int) -> tuple[float, float]:
+        """How long position and velocity have been refused at ``t_us`` (s; 0 if accepted
+        at the last epoch, NaN before navigation)."""
+        return ((t_us - self._pos_ok_us) * 1e-6 if self._pos_ok_us >= 0 else math.nan,
+                (t_us - self._vel_ok_us) * 1e-6 if self._vel_ok_us >= 0 else math.nan)
+
+    def after_epoch(self, est: Estimator, t_us: int, h_sd: float, v_sd: float,
+                    s_sd: float, vel_d_reported: bool) -> None:
+        """Call once per GNSS epoch after its updates; ``*_sd``: the accuracies used (m,
+        m/s); ``t_us``: the fix's time of validity."""
+        if self._pos_ok_us < 0:
+            self._pos_ok_us = t_us
+            self._vel_ok_us = t_us
+        r = est.innov
+        pos_flag = r[INNOV_POS, INNOV_FLAG]
+        vel_flag = r[INNOV_VEL, INNOV_FLAG]
+        if pos_flag == ACCEPTED:
+            self._pos_ok_us = t_us
+        elif (pos_flag != NOT_TRIED and self._max_us > 0.0
+              and t_us - self._pos_ok_us > self._max_us):
+            self._reset_position(est, h_sd, v_sd)
+            self._pos_ok_us = t_us
+        if vel_flag == ACCEPTED:
+            self._vel_ok_us = t_us
+        elif (vel_flag != NOT_TRIED and self._max_us > 0.0
+              and t_us - self._vel_ok_us > self._max_us):
+            self._reset_velocity(est, s_sd, vel_d_reported)
+            self._vel_ok_us = t_us
+
+    def _reset_position(self, est: Estimator, h_sd: float, v_sd: float) -> None:
+        z = est.innov[INNOV_POS]
+        if not (math.isfinite(z[0]) and math.isfinite(z[1]) and math.isfinite(z[2])):
+            return
+        pos = est.pos
+        r_m, r_n = radii(float(pos[0]))
+        h = float(pos[2])
+        cos_lat = max(math.cos(float(pos[0])), 1e-9)
+        # z = D (p_hat - p_gnss) + C l with D = diag(R_M + h, (R_N + h) cos L, -1): move by
+        # -D^-1 z so the next innovation is zero
+        pos[0] -= z[0] / (r_m + h)
+        pos[1] -= z[1] / ((r_n + h) * cos_lat)
+        pos[2] += z[2]
+        P = est.P
+        for k in range(_POS, _POS + 3):
+            P[k, :] = 0.0
+            P[:, k] = 0.0
+        P[_POS, _POS] = (h_sd / (r_m + h)) ** 2
+        P[_POS + 1, _POS + 1] = (h_sd / ((r_n + h) * cos_lat)) ** 2
+        P[_POS + 2, _POS + 2] = v_sd * v_sd
+        st.history_reset(est.buf)
+        est.counters["reset_lockout_pos"] += 1
+
+    def _reset_velocity(self, est: Estimator, s_sd: float, vel_d_reported: bool) -> None:
+        z = est.innov[INNOV_VEL]
+        if not (math.isfinite(z[0]) and math.isfinite(z[1])):
+            return
+        c = self.cfg
+        v = est.vel_n
+        v[0] -= z[0]
+        v[1] -= z[1]
+        n = 3 if vel_d_reported and math.isfinite(z[2]) else 2
+        if n == 3:
+            v[2] -= z[2]
+        P = est.P
+        for k in range(_VEL, _VEL + n):
+            P[k, :] = 0.0
+            P[:, k] = 0.0
+            P[k, k] = s_sd * s_sd
+        # what drove the velocity away is in doubt as much as at the start
+        tilt2 = c.init.tilt_sd ** 2
+        P[0, 0] += tilt2
+        P[1, 1] += tilt2
+        P[2, 2] += c.init.heading_sd ** 2
+        for k in range(9, 12):
+            P[k, k] += c.imu.gyro_bias_sd ** 2
+        for k in range(12, 15):
+            P[k, k] += c.imu.accel_bias_sd ** 2
+        st.history_reset(est.buf)
+        est.counters["reset_lockout_vel"] += 1

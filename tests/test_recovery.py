@@ -1,0 +1,122 @@
+"""Lock-out recovery (navd.core.aiding.gnss_recovery): a state the gate no longer lets GNSS
+correct is reset to GNSS within ``[filter] max_lockout_s``, with the default config."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from firmware_sim import SimRun, generate, load_scenario
+from navd.config import load_config
+from navd.core.aiding.base import ACCEPTED, INNOV_FLAG, INNOV_POS, INNOV_VEL, REJECTED
+from navd.core.estimator import Estimator
+from navd.pipeline import build_estimator
+from navd.types import GnssSample, ImuSample
+
+R_EARTH = 6.371e6
+
+
+@pytest.fixture(scope="module")
+def run() -> SimRun:
+    return generate(load_scenario("car480", {"duration_s": 90.0}), seed=3, progress=False)
+
+
+def _longest_refusal_s(flags: list[tuple[int, float]]) -> float:
+    """Longest sensor time from the first of a run of refused epochs to the next accepted."""
+    longest, first = 0.0, -1
+    for t_us, flag in flags:
+        if flag == REJECTED and first < 0:
+            first = t_us
+        elif flag == ACCEPTED and first >= 0:
+            longest = max(longest, (t_us - first) * 1e-6)
+            first = -1
+    if first >= 0:
+        longest = max(longest, (flags[-1][0] - first) * 1e-6)
+    return longest
+
+
+def _drive(est: Estimator, run: SimRun, shift_after_us: int = -1, shift_m: float = 0.0,
+           kick_at_us: int = -1, kick_vel_e: float = 0.0
+           ) -> tuple[list[tuple[int, float]], list[tuple[int, float]]]:
+    """Push the run; fixes valid from ``shift_after_us`` on are moved ``shift_m`` north; at
+    ``kick_at_us`` the estimator's east velocity is corrupted by ``kick_vel_e`` (covariance
+    left as it was: a state the filter wrongly trusts).  Returns (t, flag) per epoch for
+    position and velocity."""
+    pos_flags: list[tuple[int, float]] = []
+    vel_flags: list[tuple[int, float]] = []
+    kicked = False
+    for s in run.samples():
+        if isinstance(s, GnssSample):
+            if 0 <= shift_after_us <= s.t_us:
+                s = dataclasses.replace(s, lat_rad=s.lat_rad + shift_m / R_EARTH,
+                                        pos_ecef_m=None)
+            est.push(s)
+            if est.initialized:
+                pos_flags.append((s.t_us, float(est.innov[INNOV_POS, INNOV_FLAG])))
+                vel_flags.append((s.t_us, float(est.innov[INNOV_VEL, INNOV_FLAG])))
+            continue
+        est.push(s)
+        if isinstance(s, ImuSample) and not kicked and 0 <= kick_at_us <= s.t_us:
+            est.vel_n[1] += kick_vel_e
+            kicked = True
+    return pos_flags, vel_flags
+
+
+def test_a_persistent_position_offset_is_taken_after_the_lockout_time(run: SimRun) -> None:
+    """GIVEN the default config on a 90 s drive,
+    WHEN from t = 40 s on every fix is 500 m further north (a receiver that re-converged
+    elsewhere: no single outlier, the gate refuses them all),
+    THEN the position is reset to GNSS once, no later than max_lockout_s (5 s) plus one
+    epoch after the first refusal, and the fixes are accepted again afterwards."""
+    est = build_estimator(load_config(None, []))
+    pos, _ = _drive(est, run, shift_after_us=40_000_000, shift_m=500.0)
+    assert est.counters["reset_lockout_pos"] == 1
+    assert _longest_refusal_s(pos) <= 5.0 + 0.2
+    late = [f for t, f in pos if t > 50_000_000]
+    assert late and all(f == ACCEPTED for f in late)
+    # the state follows the (shifted) fixes, not the old track
+    g = list(run.gnss_samples())[-1]
+    dn = (float(est.pos[0]) - (g.lat_rad + 500.0 / R_EARTH)) * R_EARTH
+    assert abs(dn) < 10.0
+
+
+def test_a_velocity_the_filter_wrongly_trusts_is_reset_and_attitude_recovers(
+        run: SimRun) -> None:
+    """GIVEN the default config, navigating normally,
+    WHEN the velocity state is knocked 15 m/s east at t = 40 s while its covariance stays
+    small (the filter is certain of a wrong state: every velocity fix is refused),
+    THEN the velocity is reset to GNSS within 5 s plus one epoch, counted, and at the end
+    the heading is within 1 deg of the truth with no lock-out left."""
+    est = build_estimator(load_config(None, []))
+    _, vel = _drive(est, run, kick_at_us=40_000_000, kick_vel_e=15.0)
+    assert est.counters["reset_lockout_vel"] >= 1
+    assert _longest_refusal_s(vel) <= 5.0 + 0.2
+    assert vel[-1][1] == ACCEPTED
+    k = len(run.truth_t_us) - 1
+    assert est.t_us == int(run.truth_t_us[k])
+    yaw_err = math.degrees(math.atan2(est.mat_nb[1, 0], est.mat_nb[0, 0])
+                           - run.truth_euler[k, 2])
+    assert abs((yaw_err + 180.0) % 360.0 - 180.0) < 1.0
+    assert np.all(np.isfinite(est.P)) and np.all(np.linalg.eigvalsh(est.P) > -1e-12)
+
+
+def test_no_reset_when_the_fixes_are_merely_noisy(run: SimRun) -> None:
+    """GIVEN the default config and the simulator's receiver (noise as reported),
+    WHEN the whole drive is replayed,
+    THEN no lock-out reset happens (a reset is a repair, not part of normal running)."""
+    est = build_estimator(load_config(None, []))
+    _drive(est, run)
+    assert est.counters["reset_lockout_pos"] == 0
+    assert est.counters["reset_lockout_vel"] == 0
+
+
+def test_max_lockout_zero_disables_the_reset(run: SimRun) -> None:
+    """GIVEN ``[filter] max_lockout_s = 0``, WHEN the fixes jump 500 m for good,
+    THEN nothing resets and the fixes stay refused (the old behaviour, for comparison)."""
+    est = build_estimator(load_config(None, ["filter.max_lockout_s=0"]))
+    pos, _ = _drive(est, run, shift_after_us=40_000_000, shift_m=500.0)
+    assert est.counters["reset_lockout_pos"] == 0
+    assert _longest_refusal_s(pos) > 40.0
