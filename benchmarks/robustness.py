@@ -4,8 +4,9 @@ Every case runs ``navd.pipeline.build_estimator`` on ``load_config(None, [profil
 defaults plus the scenario's natural ``filter.profile`` (ground for cars, multirotor for the
 multirotor scenario, fixed_wing for the X8), never the simulated IMU's own figures.  Simulated
 cases are overrides of the built-in scenarios (car480: 480 s at 10-24 m/s; multirotor: 240 s;
-drive_long: 1200 s with stops and outages), full length: nothing is shortened at the default
-settings (about 6 min on 2 cores with ``--seeds 2``; each extra seed adds about 2.5 min).
+drive_long: 1200 s with stops and outages), full length: nothing is shortened, since the
+default settings (19 cases x 5 seeds + 4 logs) take about 2 minutes on 2 cores (numba's
+compiled code cached; the first run ever compiles for about a minute more).
 
 Per case (pooled over seeds; instants every 0.1 s of sensor time after navigation starts):
 
@@ -527,7 +528,7 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", help="write one record per case to this file")
     ap.add_argument("--cases", help="comma-separated case names (default: all, with real logs)")
-    ap.add_argument("--seeds", type=int, default=2, help="Monte Carlo seeds 1..N (default 2)")
+    ap.add_argument("--seeds", type=int, default=5, help="Monte Carlo seeds 1..N (default 5)")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     ap.add_argument("--list", action="store_true", help="list the cases and exit")
     a = ap.parse_args(argv)
