@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -48,12 +48,14 @@ class SimRun:
         truth_mat_nb: (N+1, 3, 3) C_b^n.
         truth_euler: (N+1, 3) roll, pitch, yaw (rad, yaw in (-pi, pi]).
         truth_dov: (N+1, 3) xi (rad), eta (rad), dg_D (m/s^2).
-        gyro_bias_rps: (3,) constant gyro bias drawn, body FRD, rad/s.
-        accel_bias_mps2: (3,) constant accelerometer bias drawn, body FRD, m/s^2.
+        gyro_bias_rps: (3,) constant gyro bias (drawn + scenario offset), body FRD, rad/s.
+        accel_bias_mps2: (3,) constant accelerometer bias (drawn + offset), body FRD, m/s^2.
         gyro_scale: (3,) gyro scale-factor error drawn (dimensionless).
         accel_scale: (3,) accelerometer scale-factor error drawn (dimensionless).
         gyro_gm_rps: (N, 3) Gauss-Markov gyro bias per interval, rad/s.
         accel_gm_mps2: (N, 3) Gauss-Markov accelerometer bias per interval, m/s^2.
+        gyro_rw_rps: (N, 3) gyro bias random walk per interval, rad/s (empty if none).
+        accel_rw_mps2: (N, 3) accelerometer bias random walk per interval, m/s^2.
         pol: polarization readings when the scenario has an enabled ``[polarization]``
             sensor (columns of :data:`firmware_sim.polarization.POL_COLUMNS` plus
             ``truth_idx``), else None.
@@ -80,6 +82,8 @@ class SimRun:
     gyro_gm_rps: Arr
     accel_gm_mps2: Arr
     pol: dict[str, npt.NDArray[Any]] | None = None
+    gyro_rw_rps: Arr = field(default_factory=lambda: np.zeros((0, 3)))
+    accel_rw_mps2: Arr = field(default_factory=lambda: np.zeros((0, 3)))
 
     @property
     def imu_dt_s(self) -> float:
@@ -215,5 +219,6 @@ def generate(scenario: Scenario, seed: int, progress: bool = False) -> SimRun:
         truth_euler=truth.euler, truth_dov=truth.dov, gyro_bias_rps=err.gyro_bias_rps,
         accel_bias_mps2=err.accel_bias_mps2, gyro_scale=err.gyro_scale,
         accel_scale=err.accel_scale, gyro_gm_rps=err.gyro_gm_rps,
-        accel_gm_mps2=err.accel_gm_mps2, pol=pol,
+        accel_gm_mps2=err.accel_gm_mps2, pol=pol, gyro_rw_rps=err.gyro_rw_rps,
+        accel_rw_mps2=err.accel_rw_mps2,
     )

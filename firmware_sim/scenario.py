@@ -36,6 +36,7 @@ __all__ = [
     "ModulationSpec",
     "MultirotorSpec",
     "PolarizationSpec",
+    "PosStepSpec",
     "Scenario",
     "ScenarioError",
     "ShipSpec",
@@ -208,12 +209,34 @@ class ImuSpec:
     gyro_scale_factor_sigma_ppm: float = _f("ppm", 0.0)
     accel_scale_factor_sigma_ppm: float = _f("ppm", 0.0)
     grade: str = _f("", "", "preset filling the keys not given (see GRADES)")
+    # An uncalibrated IMU: a known, fixed offset on top of the drawn bias (the drawn bias is
+    # a calibration residual; these are what a factory-fresh MEMS part reads at rest).
+    gyro_offset_rps: tuple[float, ...] = _f("rad/s", (0.0, 0.0, 0.0),
+                                            "constant gyro offset x y z, body FRD")
+    accel_offset_mps2: tuple[float, ...] = _f("m/s^2", (0.0, 0.0, 0.0),
+                                              "constant accelerometer offset x y z, body FRD")
+    gyro_bias_rw_rps_per_sqrt_s: float = _f("rad/s/sqrt(s)", 0.0,
+                                            "gyro bias random walk (starts at 0)")
+    accel_bias_rw_mps2_per_sqrt_s: float = _f("m/s^2/sqrt(s)", 0.0,
+                                              "accelerometer bias random walk (starts at 0)")
 
 
 @dataclass(frozen=True)
 class DropoutSpec:
     start_s: float = _f("s")
     end_s: float = _f("s")
+
+
+@dataclass(frozen=True)
+class PosStepSpec:
+    """Every fix valid in ``[start_s, end_s)`` is moved by (north, east, down) metres: a
+    position jump that lasts (a wrong solution the receiver holds), not a one-epoch spike."""
+
+    start_s: float = _f("s")
+    end_s: float = _f("s")
+    north_m: float = _f("m", 0.0)
+    east_m: float = _f("m", 0.0)
+    down_m: float = _f("m", 0.0)
 
 
 @dataclass(frozen=True)
@@ -233,7 +256,12 @@ class JumpSpec:
 
 @dataclass(frozen=True)
 class GnssSpec:
-    """GNSS receiver model: 1-sigma per-axis noises, latency, dropouts, velocity jumps."""
+    """GNSS receiver model: 1-sigma per-axis noises, latency, dropouts, velocity jumps.
+
+    The ``*_sigma_*`` values are what the receiver reports as its accuracy; the velocity noise
+    actually added is ``vel_noise_scale`` times them (1: an honest receiver; 3: a receiver
+    whose velocity is 3x noisier than it claims).
+    """
 
     rate_hz: float = _f("Hz")
     pos_sigma_h_m: float = _f("m")
@@ -244,6 +272,8 @@ class GnssSpec:
     latency_s: float = _f("s", 0.0)
     dropouts: tuple[DropoutSpec, ...] = _f("s", ())
     jumps: JumpSpec = field(default_factory=JumpSpec)
+    vel_noise_scale: float = _f("", 1.0, "true velocity noise / reported velocity accuracy")
+    pos_steps: tuple[PosStepSpec, ...] = _f("s, m", ())
 
 
 @dataclass(frozen=True)
@@ -498,6 +528,10 @@ def _validate(sc: Scenario) -> None:
                  "vrw_mps_per_sqrt_s", "gyro_gm_sigma_rps", "accel_gm_sigma_mps2",
                  "gyro_scale_factor_sigma_ppm", "accel_scale_factor_sigma_ppm"):
         _check(getattr(imu, name) >= 0.0, f"imu.{name}", "must be >= 0")
+    for name in ("gyro_bias_rw_rps_per_sqrt_s", "accel_bias_rw_mps2_per_sqrt_s"):
+        _check(getattr(imu, name) >= 0.0, f"imu.{name}", "must be >= 0")
+    for name in ("gyro_offset_rps", "accel_offset_mps2"):
+        _check(len(getattr(imu, name)) == 3, f"imu.{name}", "needs 3 values (x, y, z)")
     _check(imu.gyro_gm_tau_s > 0.0, "imu.gyro_gm_tau_s", "must be > 0 s")
     _check(imu.accel_gm_tau_s > 0.0, "imu.accel_gm_tau_s", "must be > 0 s")
     g = sc.gnss
@@ -512,6 +546,9 @@ def _validate(sc: Scenario) -> None:
         _check(getattr(g, name) >= 0.0, f"gnss.{name}", "must be >= 0")
     for i, d in enumerate(g.dropouts):
         _check(d.end_s > d.start_s, f"gnss.dropouts[{i}].end_s", "must be > start_s (s)")
+    _check(g.vel_noise_scale >= 0.0, "gnss.vel_noise_scale", "must be >= 0")
+    for i, st in enumerate(g.pos_steps):
+        _check(st.end_s > st.start_s, f"gnss.pos_steps[{i}].end_s", "must be > start_s (s)")
     j = g.jumps
     _check(j.bursts >= 0, "gnss.jumps.bursts", "must be >= 0")
     _check(1 <= j.min_epochs <= j.max_epochs, "gnss.jumps.min_epochs",

@@ -2,17 +2,20 @@
 
 IMU, per axis, over an interval of ``dt`` seconds (increments, body FRD)::
 
-    dtheta = (1 + s_g) dtheta_true + (b_g + m_g[k]) dt + arw sqrt(dt) w
-    dvel   = (1 + s_a) dvel_true   + (b_a + m_a[k]) dt + vrw sqrt(dt) w'
+    dtheta = (1 + s_g) dtheta_true + (b_g + o_g + m_g[k] + r_g[k]) dt + arw sqrt(dt) w
+    dvel   = (1 + s_a) dvel_true   + (b_a + o_a + m_a[k] + r_a[k]) dt + vrw sqrt(dt) w'
 
 with constant bias ``b ~ N(0, sigma_b^2)`` and scale factor ``s ~ N(0, sigma_s^2)`` drawn once
-per seed, ``m`` a first-order Gauss-Markov process (stationary sigma, time constant tau,
-discretised exactly: ``m[k+1] = e^(-dt/tau) m[k] + sigma sqrt(1 - e^(-2 dt/tau)) w``), and
-``w`` unit white noise.  White noise is given as a density, so its per-increment sigma is
+per seed, ``o`` a fixed offset given by the scenario (an uncalibrated IMU), ``m`` a
+first-order Gauss-Markov process (stationary sigma, time constant tau, discretised exactly:
+``m[k+1] = e^(-dt/tau) m[k] + sigma sqrt(1 - e^(-2 dt/tau)) w``), ``r`` a bias random walk
+starting at 0 (``r[k+1] = r[k] + q sqrt(dt) w``, q in unit/sqrt(s)), and ``w`` unit white
+noise.  White noise is given as a density, so its per-increment sigma is
 ``density * sqrt(dt)`` (ARW in rad/sqrt(s), VRW in m/s/sqrt(s)).
 
 GNSS: per-axis position noise (horizontal N/E, vertical D; white or Gauss-Markov), per-axis
-velocity noise, dropout windows, bursts of velocity jumps, and ECEF position/velocity
+velocity noise (optionally larger than the reported accuracy), dropout windows, bursts of
+velocity jumps, position steps held over a window, and ECEF position/velocity
 consistent with the reported geodetic position and NED velocity.
 
 Every random component draws from its own stream ``default_rng([seed, stream])`` so that
@@ -45,6 +48,8 @@ STREAM_ACCEL_GM = 5
 STREAM_GNSS_POS = 6
 STREAM_GNSS_VEL = 7
 STREAM_GNSS_JUMPS = 8
+STREAM_GYRO_RW = 9
+STREAM_ACCEL_RW = 10
 
 
 def _njit(fn: F) -> F:
@@ -80,17 +85,31 @@ def gauss_markov(gen: np.random.Generator, n: int, dim: int, sigma: float, tau_s
     return out
 
 
+def random_walk(gen: np.random.Generator, n: int, dim: int, q: float, dt_s: float) -> Arr:
+    """Random walk samples (n, dim) starting at 0; ``q`` in unit/sqrt(s), so the spread after
+    t seconds is ``q sqrt(t)``."""
+    if q == 0.0 or n == 0:
+        return np.zeros((n, dim))
+    steps = (q * math.sqrt(dt_s)) * gen.standard_normal((n, dim))
+    out = np.empty((n, dim))
+    out[0] = 0.0
+    np.cumsum(steps[:-1], axis=0, out=out[1:])
+    return out
+
+
 @dataclass(frozen=True)
 class ImuErrors:
     """What was drawn for one run.
 
     Attributes:
-        gyro_bias_rps: (3,) constant gyro bias, body FRD, rad/s.
-        accel_bias_mps2: (3,) constant accelerometer bias, body FRD, m/s^2.
+        gyro_bias_rps: (3,) constant gyro bias (drawn + offset), body FRD, rad/s.
+        accel_bias_mps2: (3,) constant accelerometer bias (drawn + offset), body FRD, m/s^2.
         gyro_scale: (3,) gyro scale-factor error, dimensionless (ppm * 1e-6).
         accel_scale: (3,) accelerometer scale-factor error, dimensionless.
         gyro_gm_rps: (N, 3) Gauss-Markov gyro bias over each interval, rad/s.
         accel_gm_mps2: (N, 3) Gauss-Markov accelerometer bias, m/s^2.
+        gyro_rw_rps: (N, 3) gyro bias random walk over each interval, rad/s.
+        accel_rw_mps2: (N, 3) accelerometer bias random walk, m/s^2.
     """
 
     gyro_bias_rps: Arr
@@ -99,6 +118,8 @@ class ImuErrors:
     accel_scale: Arr
     gyro_gm_rps: Arr
     accel_gm_mps2: Arr
+    gyro_rw_rps: Arr
+    accel_rw_mps2: Arr
 
 
 def corrupt_imu(inc_true: Arr, dt_s: float, spec: ImuSpec, seed: int) -> tuple[Arr, ImuErrors]:
@@ -115,6 +136,7 @@ def corrupt_imu(inc_true: Arr, dt_s: float, spec: ImuSpec, seed: int) -> tuple[A
     """
     n = inc_true.shape[0]
     g = rng(seed, STREAM_IMU_CONST)
+    # offsets are added after the draws so that they leave every drawn value unchanged
     bg = spec.gyro_bias_sigma_rps * g.standard_normal(3)
     ba = spec.accel_bias_sigma_mps2 * g.standard_normal(3)
     sg = 1e-6 * spec.gyro_scale_factor_sigma_ppm * g.standard_normal(3)
@@ -123,15 +145,20 @@ def corrupt_imu(inc_true: Arr, dt_s: float, spec: ImuSpec, seed: int) -> tuple[A
                       spec.gyro_gm_tau_s, dt_s)
     ma = gauss_markov(rng(seed, STREAM_ACCEL_GM), n, 3, spec.accel_gm_sigma_mps2,
                       spec.accel_gm_tau_s, dt_s)
+    bg = bg + np.asarray(spec.gyro_offset_rps, dtype=np.float64)
+    ba = ba + np.asarray(spec.accel_offset_mps2, dtype=np.float64)
+    rg = random_walk(rng(seed, STREAM_GYRO_RW), n, 3, spec.gyro_bias_rw_rps_per_sqrt_s, dt_s)
+    ra = random_walk(rng(seed, STREAM_ACCEL_RW), n, 3, spec.accel_bias_rw_mps2_per_sqrt_s,
+                     dt_s)
     sq = math.sqrt(dt_s)
     wg = rng(seed, STREAM_GYRO_WHITE).standard_normal((n, 3))
     wa = rng(seed, STREAM_ACCEL_WHITE).standard_normal((n, 3))
     out = np.empty_like(inc_true)
-    out[:, 0:3] = ((1.0 + sg) * inc_true[:, 0:3] + (bg + mg) * dt_s
+    out[:, 0:3] = ((1.0 + sg) * inc_true[:, 0:3] + (bg + mg + rg) * dt_s
                    + (spec.arw_rad_per_sqrt_s * sq) * wg)
-    out[:, 3:6] = ((1.0 + sa) * inc_true[:, 3:6] + (ba + ma) * dt_s
+    out[:, 3:6] = ((1.0 + sa) * inc_true[:, 3:6] + (ba + ma + ra) * dt_s
                    + (spec.vrw_mps_per_sqrt_s * sq) * wa)
-    return out, ImuErrors(bg, ba, sg, sa, mg, ma)
+    return out, ImuErrors(bg, ba, sg, sa, mg, ma, rg, ra)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -232,7 +259,14 @@ def simulate_gnss(t_us: npt.NDArray[np.int64], pos: Arr, vel_n: Arr, t0_us: int,
         npos = gp.standard_normal((n_all, 3))
     npos *= np.array([spec.pos_sigma_h_m, spec.pos_sigma_h_m, spec.pos_sigma_v_m])
     nvel = rng(seed, STREAM_GNSS_VEL).standard_normal((n_all, 3))
-    nvel *= np.array([spec.vel_sigma_h_mps, spec.vel_sigma_h_mps, spec.vel_sigma_v_mps])
+    # the receiver reports vel_sigma_* whatever noise it really has (vel_noise_scale)
+    nvel *= spec.vel_noise_scale * np.array([spec.vel_sigma_h_mps, spec.vel_sigma_h_mps,
+                                             spec.vel_sigma_v_mps])
+    stepped = np.zeros(n_all, dtype=bool)
+    for st in spec.pos_steps:
+        inside = (ts_all >= st.start_s) & (ts_all < st.end_s)
+        npos[inside] += np.array([st.north_m, st.east_m, st.down_m])
+        stepped |= inside
     keep = np.ones(n_all, dtype=bool)
     for d in spec.dropouts:
         keep &= ~((ts_all >= d.start_s) & (ts_all < d.end_s))
@@ -240,6 +274,7 @@ def simulate_gnss(t_us: npt.NDArray[np.int64], pos: Arr, vel_n: Arr, t0_us: int,
     npos = npos[keep]
     nvel = nvel[keep]
     jump, flag = place_jumps(ts_all[keep], spec.jumps, seed)
+    flag = flag | stepped[keep]  # a stepped fix is an outlier too
 
     p = pos[idx]
     lat_t, alt_t = p[:, 0], p[:, 2]

@@ -1,0 +1,109 @@
+"""The robustness benchmark's scoring (benchmarks/robustness.py): lock-out measurement, counter
+classification, row figures and target verdicts, and one short end-to-end case whose lock-out
+is known by construction."""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+from firmware_sim import generate, load_scenario
+
+
+@pytest.fixture(scope="module")
+def b() -> ModuleType:
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "robustness.py"
+    spec = importlib.util.spec_from_file_location("bench_robustness", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_longest_lockout_rule(b: ModuleType) -> None:
+    A, R, N = b.ACCEPTED, b.REJECTED, b.NOT_TRIED
+    t = [0, 100_000, 200_000, 300_000, 400_000, 500_000, 600_000, 700_000]
+    # a run from 0.1 s to the acceptance at 0.4 s (the untried epoch in it does not end it)
+    assert b.longest_lockout_s(t, [A, R, N, R, A, A, A, A], 800_000) == pytest.approx(0.3)
+    # the longer of two runs
+    assert b.longest_lockout_s(t, [R, A, R, R, R, R, A, A], 800_000) == pytest.approx(0.4)
+    # never accepted again: locked out until the end of the data
+    assert b.longest_lockout_s(t, [A, A, A, R, R, N, R, R], 2_000_000) == pytest.approx(1.7)
+    assert b.longest_lockout_s(t, [A, N, A, N, A, N, A, N], 800_000) == 0.0
+    assert b.longest_lockout_s([], [], 800_000) == 0.0
+
+
+def test_outcome_from_counter_deltas(b: ModuleType) -> None:
+    before = {"pos_accepted": 5, "vel_rejected": 2, "vel_course_rejected": 1}
+    # the joint block failed, velocity alone then passed: the velocity update was accepted
+    after = dict(before, vel_course_rejected=2, vel_accepted=1, pos_rejected=1)
+    assert b._outcome(before, after, b.VEL_OK, b.VEL_BAD) == b.ACCEPTED
+    assert b._outcome(before, after, b.POS_OK, b.POS_BAD) == b.REJECTED
+    assert b._outcome(before, before, b.POS_OK, b.POS_BAD) == b.NOT_TRIED
+    absurd = dict(before, gnss_absurd_jump=1)
+    assert b._outcome(before, absurd, b.VEL_OK, b.VEL_BAD) == b.REJECTED
+    g = b.GnssOutcomes([0, 1, 2, 3], [b.ACCEPTED, b.REJECTED, b.REJECTED, b.NOT_TRIED],
+                       [b.REJECTED, b.REJECTED, b.NOT_TRIED, b.NOT_TRIED])
+    assert g.both() == [b.ACCEPTED, b.REJECTED, b.REJECTED, b.NOT_TRIED]
+
+
+def test_resets_counts_reinit_and_reset_counters(b: ModuleType) -> None:
+    assert b.resets({"reinit_gnss_jump": 2, "heading_reset": 3, "pos_rejected": 40,
+                     "reset_pending": 7}) == 5
+
+
+def test_row_figures_and_verdict(b: ModuleType) -> None:
+    t = np.arange(100) * 1.0  # 100 instants, 40 of them at t < 60 s
+    err = np.zeros((100, 3))
+    err[:, 0] = 0.05          # roll RMS 0.05
+    err[:, 1] = np.where(np.arange(100) % 2 == 0, 0.3, -0.3)  # pitch RMS 0.3
+    err[:, 2] = 2.0
+    err[:10, 2] = 40.0        # the unaligned start
+    sd = np.full((100, 3), 0.2)
+    aligned = np.arange(100) >= 10
+    sd[:, 2] = np.where(np.arange(100) < 30, 0.5, 1.0)  # 20 aligned instants exceed 3 sigma
+    r = b.RunResult(t, err, sd, aligned, 12.0, 0.0, 0.0, 1, {})
+    rec = b.row_figures([r], "clean")
+    assert rec["roll_rms_deg"] == pytest.approx(0.05)
+    assert rec["pitch_rms_deg"] == pytest.approx(0.3)
+    assert rec["heading_rms_deg"] == pytest.approx(math.sqrt((10 * 40**2 + 90 * 4) / 100))
+    assert rec["heading_aligned_rms_deg"] == pytest.approx(2.0)
+    assert rec["exceed3_roll_pct"] == 0.0
+    assert rec["exceed3_pitch_pct"] == 0.0      # 0.3 <= 3 x 0.2
+    assert rec["exceed3_heading_pct"] == pytest.approx(100.0 * 20 / 90)
+    assert rec["tilt_max_after_60s_deg"] == pytest.approx(0.3)
+    assert rec["lock_pos_s"] == 12.0 and rec["resets"] == 1
+    assert rec["misses"] == ["hdg", "tilt", ">3s", "lock"]
+    # two seeds pool their instants, take the worst lock-out and add resets
+    r2 = b.RunResult(t, err * 0.0, sd, aligned, 1.0, 6.0, 0.0, 2, {})
+    rec2 = b.row_figures([r, r2], "integrity")
+    assert rec2["roll_rms_deg"] == pytest.approx(0.05 / math.sqrt(2))
+    assert rec2["lock_vel_s"] == 6.0 and rec2["lock_pos_s"] == 12.0 and rec2["resets"] == 3
+    assert "lock" in rec2["misses"] and "hdg" not in rec2["misses"]
+
+
+def test_short_case_lockout_is_measured_as_its_length(b: ModuleType) -> None:
+    """car480 for 100 s; every fix in [40, 60) s is 500 m off: 20 s of refused positions."""
+    run = generate(load_scenario("car480", {
+        "duration_s": 100.0,
+        "gnss.pos_steps": [{"start_s": 40.0, "end_s": 60.0, "north_m": 500.0}]}), seed=1)
+    res = b.score_sim(run, "ground")
+    # the first accepted position is the first fix back (t = 60.0 s) or, at worst, a few
+    # epochs later while the gate re-admits it
+    assert 20.0 <= res.lock_pos_s <= 21.0
+    assert res.lock_vel_s == 0.0 and res.lock_all_s == 0.0  # velocity was never wrong
+    assert res.counters["pos_rejected"] >= 200
+    assert res.resets == 0
+    rec = b.row_figures([res], "integrity")
+    assert rec["lock_pos_s"] == res.lock_pos_s
+    assert rec["misses"] == ["lock"] or rec["misses"] == [">3s", "lock"]
+    assert rec["instants"] == res.t_s.size > 900
+    line = b.format_row({"case": "jump", **rec})
+    assert "20." in line and "MISS" in line
