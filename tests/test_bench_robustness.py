@@ -56,7 +56,7 @@ def test_outcome_from_counter_deltas(b: ModuleType) -> None:
 
 def test_resets_counts_reinit_and_reset_counters(b: ModuleType) -> None:
     assert b.resets({"reinit_gnss_jump": 2, "heading_reset": 3, "pos_rejected": 40,
-                     "reset_pending": 7}) == 5
+                     "reset_lockout_vel": 4, "heading_aligned_from_course": 7}) == 9
 
 
 def test_row_figures_and_verdict(b: ModuleType) -> None:
@@ -90,11 +90,13 @@ def test_row_figures_and_verdict(b: ModuleType) -> None:
 
 
 def test_short_case_lockout_is_measured_as_its_length(b: ModuleType) -> None:
-    """car480 for 100 s; every fix in [40, 60) s is 500 m off: 20 s of refused positions."""
+    """car480 for 100 s; every fix in [40, 60) s is 500 m off: with the lock-out reset off,
+    20 s of refused positions; with the default reset (5 s), at most 5 s plus one epoch."""
     run = generate(load_scenario("car480", {
         "duration_s": 100.0,
         "gnss.pos_steps": [{"start_s": 40.0, "end_s": 60.0, "north_m": 500.0}]}), seed=1)
-    res = b.score_sim(run, "ground")
+    assert b.score_sim(run, "ground").lock_pos_s <= 5.2
+    res = b.score_sim(run, "ground", ("filter.max_lockout_s=0",))
     # the first accepted position is the first fix back (t = 60.0 s) or, at worst, a few
     # epochs later while the gate re-admits it
     assert 20.0 <= res.lock_pos_s <= 21.0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from functools import cache
 
@@ -372,3 +373,32 @@ def test_heading_hold_is_off_for_a_gyro_that_can_gyrocompass() -> None:
     assert Estimator(cfg("imu.gyro_bias_sd_deg_per_h=12")).gnss.hold_enabled is True
     assert Estimator(cfg("imu.gyro_bias_sd_deg_per_h=12",
                          "heading.hold_static=false")).gnss.hold_enabled is False
+
+
+def test_static_hold_survives_a_one_metre_per_second_velocity_spike() -> None:
+    """GIVEN a MEMS IMU at rest with no heading source (heading held as a consider state),
+    WHEN one GNSS epoch reports 1 m/s of horizontal velocity (receiver noise; the vehicle
+    and the IMU are still),
+    THEN that epoch is held too (the IMU-propagated velocity says "at rest") and the heading
+    does not move by more than 0.5 deg across it."""
+    run = generate(load_scenario("static", {"duration_s": 60.0}), seed=2, progress=False)
+    yaw0 = math.degrees(float(run.truth_euler[0, 2])) + 5.0
+    e = Estimator(cfg("init.heading_source=config", f"init.heading_deg={yaw0}",
+                      "init.heading_sd_deg=10"))
+    spike_t = 30_000_000
+    yaw_before = yaw_after = math.nan
+    held_before = 0
+    for smp in run.samples():
+        if isinstance(smp, GnssSample) and smp.t_us == spike_t:
+            smp = dataclasses.replace(smp, vel_n=smp.vel_n + 0.8, vel_e=smp.vel_e + 0.6,
+                                      vel_ecef_mps=None)
+            yaw_before = math.atan2(e.mat_nb[1, 0], e.mat_nb[0, 0])
+            held_before = e.counters["heading_held"]
+            e.push(smp)
+            yaw_after = math.atan2(e.mat_nb[1, 0], e.mat_nb[0, 0])
+            assert e.counters["heading_held"] == held_before + 1
+            continue
+        e.push(smp)
+    assert math.isfinite(yaw_before)
+    d = math.degrees((yaw_after - yaw_before + math.pi) % (2 * math.pi) - math.pi)
+    assert abs(d) < 0.5

@@ -154,9 +154,17 @@ class GnssAiding:
         if not (math.isfinite(g.vel_n) and math.isfinite(g.vel_e)):
             return False
         r = est.rate_b
-        if (math.hypot(g.vel_n, g.vel_e) > self.cfg.heading.hold_max_speed
-                or math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+        if (math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
                 > self.cfg.init.static_rate_tol):
+            return False
+        # At rest either the fix or the IMU-propagated velocity says so: one noisy fix above
+        # the threshold (1 in ~74 static epochs of a MEMS receiver) must not end the hold,
+        # because that single update can turn the unobservable heading by tens of degrees.
+        # Moving off, the IMU raises the filter's speed within a fraction of a second.
+        v = est.vel_n
+        still = self.cfg.heading.hold_max_speed
+        if (math.hypot(g.vel_n, g.vel_e) > still
+                and math.sqrt(v[0] * v[0] + v[1] * v[1]) > still):
             return False
         est.counters["heading_held"] += 1
         return True
