@@ -1,6 +1,9 @@
 """Recovery from a GNSS lock-out: when the gate has refused every position (or velocity)
 update for longer than ``[filter] max_lockout_s``, the state is reset to GNSS.
 
+The reset comes at the last epoch before the refusal would outlast ``max_lockout`` (the
+next epoch is expected one interval later), so no lock-out lasts longer than that.
+
 Why.  A chi-square gate trusts the filter's covariance.  When the state has drifted beyond
 what the covariance admits (a mis-stated IMU noise spec, an uncalibrated gyro, a vehicle
 the model does not describe, a receiver that re-converged somewhere else), every honest fix
@@ -51,10 +54,12 @@ class LockoutRecovery:
         self._max_us = cfg.filter.max_lockout * 1e6
         self._pos_ok_us = -1  # time of validity of the last accepted (or reset) update
         self._vel_ok_us = -1
+        self._prev_us = -1  # time of validity of the previous epoch
 
     def reset(self) -> None:
         self._pos_ok_us = -1
         self._vel_ok_us = -1
+        self._prev_us = -1
 
     def longest_refusal_s(self, t_us: int) -> tuple[float, float]:
         """How long position and velocity have been refused at ``t_us`` (s; 0 if accepted
@@ -69,19 +74,24 @@ class LockoutRecovery:
         if self._pos_ok_us < 0:
             self._pos_ok_us = t_us
             self._vel_ok_us = t_us
+        # Reset at the last epoch before the refusal would exceed max_lockout: the next
+        # epoch is expected one interval later, so a lock-out never lasts longer than that.
+        step = t_us - self._prev_us if self._prev_us >= 0 else 0
+        self._prev_us = t_us
+        limit = self._max_us - step
         r = est.innov
         pos_flag = r[INNOV_POS, INNOV_FLAG]
         vel_flag = r[INNOV_VEL, INNOV_FLAG]
         if pos_flag == ACCEPTED:
             self._pos_ok_us = t_us
         elif (pos_flag != NOT_TRIED and self._max_us > 0.0
-              and t_us - self._pos_ok_us > self._max_us):
+              and t_us - self._pos_ok_us > limit):
             self._reset_position(est, h_sd, v_sd)
             self._pos_ok_us = t_us
         if vel_flag == ACCEPTED:
             self._vel_ok_us = t_us
         elif (vel_flag != NOT_TRIED and self._max_us > 0.0
-              and t_us - self._vel_ok_us > self._max_us):
+              and t_us - self._vel_ok_us > limit):
             self._reset_velocity(est, s_sd, vel_d_reported)
             self._vel_ok_us = t_us
 
