@@ -2,22 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
 from types import ModuleType
 
 import pytest
+from bench_util import load_benchmark
 
 
 def _bench() -> ModuleType:
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "polarization.py"
-    spec = importlib.util.spec_from_file_location("bench_polarization", path)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("polarization")
 
 
 def test_target_rule() -> None:

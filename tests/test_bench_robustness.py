@@ -4,27 +4,19 @@ is known by construction."""
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 from types import ModuleType
 
 import numpy as np
 import pytest
+from bench_util import load_benchmark
 
 from firmware_sim import generate, load_scenario
 
 
 @pytest.fixture(scope="module")
 def b() -> ModuleType:
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "robustness.py"
-    spec = importlib.util.spec_from_file_location("bench_robustness", path)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("robustness")
 
 
 def test_longest_lockout_rule(b: ModuleType) -> None:

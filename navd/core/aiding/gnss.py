@@ -84,8 +84,7 @@ class GnssAiding:
             "heading_held": self.hold >= 0,
             # how long position / velocity updates have been refused (s; reset to GNSS
             # beyond [filter] max_lockout_s)
-            "gnss_refused_s": [round(x, 2) if math.isfinite(x) else None
-                               for x in self.recovery.longest_refusal_s(est.t_us)],
+            "gnss_refused_s": [round(x, 2) for x in self.recovery.refused_s(est.t_us)],
         }
 
     def fuse(self, est: Estimator, g: GnssSample) -> bool:

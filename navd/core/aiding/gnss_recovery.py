@@ -1,8 +1,9 @@
 """Recovery from a GNSS lock-out: when the gate has refused every position (or velocity)
 update for longer than ``[filter] max_lockout_s``, the state is reset to GNSS.
 
-The reset comes at the last epoch before the refusal would outlast ``max_lockout`` (the
-next epoch is expected one interval later), so no lock-out lasts longer than that.
+A lock-out is timed from the first refused epoch of a run of refusals; the reset comes at
+the last epoch before it would outlast ``max_lockout`` (the next epoch is expected one
+interval later), so no lock-out lasts longer than that.
 
 Why.  A chi-square gate trusts the filter's covariance.  When the state has drifted beyond
 what the covariance admits (a mis-stated IMU noise spec, an uncalibrated gyro, a vehicle
@@ -52,48 +53,55 @@ class LockoutRecovery:
     def __init__(self, cfg: EstimatorConfig) -> None:
         self.cfg = cfg
         self._max_us = cfg.filter.max_lockout * 1e6
-        self._pos_ok_us = -1  # time of validity of the last accepted (or reset) update
-        self._vel_ok_us = -1
+        # time of validity of the first refused epoch of the present run of refusals
+        # (-1: the last epoch that tried the update accepted it)
+        self._pos_refused_us = -1
+        self._vel_refused_us = -1
         self._prev_us = -1  # time of validity of the previous epoch
 
     def reset(self) -> None:
-        self._pos_ok_us = -1
-        self._vel_ok_us = -1
+        self._pos_refused_us = -1
+        self._vel_refused_us = -1
         self._prev_us = -1
 
-    def longest_refusal_s(self, t_us: int) -> tuple[float, float]:
-        """How long position and velocity have been refused at ``t_us`` (s; 0 if accepted
-        at the last epoch, NaN before navigation)."""
-        return ((t_us - self._pos_ok_us) * 1e-6 if self._pos_ok_us >= 0 else math.nan,
-                (t_us - self._vel_ok_us) * 1e-6 if self._vel_ok_us >= 0 else math.nan)
+    def refused_s(self, t_us: int) -> tuple[float, float]:
+        """How long position and velocity have been refused at ``t_us`` (s; 0 when the
+        last epoch that tried them accepted)."""
+        return ((t_us - self._pos_refused_us) * 1e-6 if self._pos_refused_us >= 0 else 0.0,
+                (t_us - self._vel_refused_us) * 1e-6 if self._vel_refused_us >= 0 else 0.0)
 
     def after_epoch(self, est: Estimator, t_us: int, h_sd: float, v_sd: float,
                     s_sd: float, vel_d_reported: bool) -> None:
         """Call once per GNSS epoch after its updates; ``*_sd``: the accuracies used (m,
         m/s); ``t_us``: the fix's time of validity."""
-        if self._pos_ok_us < 0:
-            self._pos_ok_us = t_us
-            self._vel_ok_us = t_us
-        # Reset at the last epoch before the refusal would exceed max_lockout: the next
-        # epoch is expected one interval later, so a lock-out never lasts longer than that.
+        # The next epoch is expected one interval later: reset at the last epoch before the
+        # refusal would outlast max_lockout, so that no lock-out lasts longer.
         step = t_us - self._prev_us if self._prev_us >= 0 else 0
         self._prev_us = t_us
-        limit = self._max_us - step
         r = est.innov
-        pos_flag = r[INNOV_POS, INNOV_FLAG]
-        vel_flag = r[INNOV_VEL, INNOV_FLAG]
-        if pos_flag == ACCEPTED:
-            self._pos_ok_us = t_us
-        elif (pos_flag != NOT_TRIED and self._max_us > 0.0
-              and t_us - self._pos_ok_us > limit):
+        self._pos_refused_us = self._watch(r[INNOV_POS, INNOV_FLAG], self._pos_refused_us,
+                                           t_us, step)
+        if self._pos_refused_us == -2:
             self._reset_position(est, h_sd, v_sd)
-            self._pos_ok_us = t_us
-        if vel_flag == ACCEPTED:
-            self._vel_ok_us = t_us
-        elif (vel_flag != NOT_TRIED and self._max_us > 0.0
-              and t_us - self._vel_ok_us > limit):
+            self._pos_refused_us = -1
+        self._vel_refused_us = self._watch(r[INNOV_VEL, INNOV_FLAG], self._vel_refused_us,
+                                           t_us, step)
+        if self._vel_refused_us == -2:
             self._reset_velocity(est, s_sd, vel_d_reported)
-            self._vel_ok_us = t_us
+            self._vel_refused_us = -1
+
+    def _watch(self, flag: float, refused_us: int, t_us: int, step: int) -> int:
+        """The new start of the refusal run after an epoch with outcome ``flag``; -2 when
+        the state must be reset now.  Epochs that did not try the update (no velocity in
+        the fix, an outage) neither start nor end a run."""
+        if flag == ACCEPTED:
+            return -1
+        if flag == NOT_TRIED:
+            return refused_us
+        start = refused_us if refused_us >= 0 else t_us
+        if self._max_us > 0.0 and t_us - start + step >= self._max_us:
+            return -2
+        return start
 
     def _reset_position(self, est: Estimator, h_sd: float, v_sd: float) -> None:
         z = est.innov[INNOV_POS]
