@@ -171,3 +171,106 @@ def test_daemon_survives_fuzz_and_counts_it(tmp_path: Path) -> None:
     # ...and the journal got a handful of lines for all of it (one per reason per 5 s)
     warnings = [ln for ln in text.splitlines() if " WARNING " in ln]
     assert rejected > 5000 and len(warnings) < 60, (rejected, len(warnings))
+
+
+# -- the recording path (issue 16 item 2) -------------------------------------------------------
+
+# A GPS_INPUT whose uint64 time_usec (2**63 + 1) does not fit a recording's int64 field: it
+# ended the daemon when --record was on.
+CRAFTED_GPS_INPUT = bytes.fromhex(
+    "fd3f0000000101e800000100000000000080000000008081621440d2e8400000c843cdcc4c3f9a99993f"
+    "0000000000000000000000009a99993e0000803f000000400000000000030ce130")
+
+_INT_RANGE = {"uint8_t": (0, 0xFF), "int8_t": (-0x80, 0x7F), "uint16_t": (0, 0xFFFF),
+              "int16_t": (-0x8000, 0x7FFF), "uint32_t": (0, 0xFFFFFFFF),
+              "int32_t": (-0x80000000, 0x7FFFFFFF), "uint64_t": (0, (1 << 64) - 1),
+              "int64_t": (-(1 << 63), (1 << 63) - 1)}
+_FUZZED = (mavlink.MAVLink_highres_imu_message, mavlink.MAVLink_scaled_imu_message,
+           mavlink.MAVLink_scaled_imu2_message, mavlink.MAVLink_raw_imu_message,
+           mavlink.MAVLink_gps_raw_int_message, mavlink.MAVLink_gps_input_message,
+           mavlink.MAVLink_hil_gps_message)
+
+
+def _extreme(rng: random.Random, ftype: str) -> Any:
+    """A field value at or near the edges of its wire type (valid on the wire)."""
+    if ftype in ("float", "double"):
+        return rng.choice([math.nan, math.inf, -math.inf, 3.0e38, -3.0e38, 0.0, -0.0, 1e-40,
+                           rng.uniform(-1e4, 1e4)])
+    lo, hi = _INT_RANGE[ftype]
+    return rng.choice([lo, hi, lo + 1, hi - 1, 0, 1, hi // 2 + 1, rng.randint(lo, hi)])
+
+
+def _mutated(rng: random.Random, packer: Any, good: bytes | None) -> bytes:
+    """A CRC-valid frame: ``good`` with 1-3 fields set to extremes, or (None) a handled
+    message type with every field at an extreme."""
+    if good is not None:
+        msg = mavlink.MAVLink(None).parse_buffer(good)[0]
+        cls = type(msg)
+        vals = {n: getattr(msg, n) for n in cls.fieldnames}
+        names = rng.sample(cls.fieldnames, rng.randint(1, 3))
+    else:
+        cls = rng.choice(_FUZZED)
+        vals, names = {}, list(cls.fieldnames)
+    for n in names:
+        t = cls.fieldtypes[cls.fieldnames.index(n)]
+        length = cls.array_lengths[cls.fieldnames.index(n)]
+        vals[n] = ([_extreme(rng, t) for _ in range(length)] if length
+                   else _extreme(rng, t))
+    return bytes(cls(**vals).pack(packer))
+
+
+def test_daemon_with_record_survives_crafted_frames(tmp_path: Path) -> None:
+    from navd.io.recording import RecordingReader
+
+    run = car_run(10.0)
+    port_in = free_port()
+    cfg = write_config(tmp_path / "navd.toml", {
+        "mavlink": {"listen": f"udpin:127.0.0.1:{port_in}", "send": "", "allow": [[1, 1]]},
+        "zenoh": {"enabled": False},
+        "daemon": {"status_period_s": 0.5},
+    })
+    notify = NotifySocket()
+    log, rec = tmp_path / "navd.log", tmp_path / "run.navdrec"
+    proc = start_daemon(cfg, log, {"NOTIFY_SOCKET": notify.path}, ("--record", str(rec)))
+    rng = random.Random(16002)
+    real = MavlinkTx(1, 1)
+    packer = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    sent = 0
+    try:
+        notify.wait_for("READY=1", STARTUP_TIMEOUT_S, proc)
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock.sendto(CRAFTED_GPS_INPUT, ("127.0.0.1", port_in))
+        time.sleep(0.5)
+        assert proc.poll() is None, "the issue's frame ended the daemon"
+        wall0 = time.monotonic()
+        for t, s in timed_samples(run):
+            delay = wall0 + t * 1e-6 / RATE_FACTOR - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            good = real.highres_imu(s) if isinstance(s, ImuSample) else real.gps_input(s)
+            sock.sendto(good, ("127.0.0.1", port_in))
+            if t >= 2_000_000:
+                for bad in (_mutated(rng, packer, good), _mutated(rng, packer, good),
+                            _mutated(rng, packer, None)):
+                    sock.sendto(bad, ("127.0.0.1", port_in))
+                    sent += 1
+        sock.sendto(CRAFTED_GPS_INPUT, ("127.0.0.1", port_in))
+        sock.close()
+        time.sleep(1.0)
+        assert proc.poll() is None, "the daemon died under fuzz with --record"
+        proc.send_signal(signal.SIGTERM)
+        rc = proc.wait(30)
+    finally:
+        stop_daemon(proc)
+        notify.close()
+    text = log.read_text()
+    assert rc == 0, text[-3000:]
+    assert sent > 2000
+    stats = json.loads(text.split("final stats ", 1)[1].splitlines()[0])
+    assert stats["inputs"]["mavlink"].get("gnss_time_out_of_range", 0) >= 2, stats["inputs"]
+    assert stats["recording"]["errors"] == 0 and stats["recording"]["records"] > 0
+    # what was recorded is a valid recording of every sample the estimator got
+    reader = RecordingReader(rec)
+    samples = list(reader.samples())
+    assert reader.truncated_bytes == 0 and len(samples) == stats["recording"]["records"]
+    assert all(0 < x.t_us < (1 << 53) for x in samples)

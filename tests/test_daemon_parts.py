@@ -210,6 +210,44 @@ def test_recording_round_trip_is_exact(tmp_path: Path) -> None:
     assert len(list(r.samples())) == len(samples) - 1 and r.truncated_bytes > 0
 
 
+def test_recording_refuses_an_unrepresentable_sample_and_stays_valid(tmp_path: Path) -> None:
+    from navd.io.recording import RecordingError
+
+    path = tmp_path / "r.navdrec"
+    w = RecordingWriter(path, {}, 50.0)
+    w.write(_imu(1000))
+    for bad in (_imu((1 << 63) + 1),
+                GnssSample((1 << 64) - 1, 0.6, 1.9, 400.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.1)):
+        with pytest.raises(RecordingError, match="cannot record"):
+            w.write(bad)
+    w.write(_imu(2000))
+    w.close()
+    r = RecordingReader(path)
+    assert [s.t_us for s in r.samples()] == [1000, 2000] and r.truncated_bytes == 0
+
+
+def test_daemon_survives_a_recording_it_cannot_write(caplog: pytest.LogCaptureFixture) -> None:
+    """Disk full (/dev/full) or an unrecordable sample: counted, logged, navigation goes on."""
+    from navd.config.daemon import load_daemon_config
+    from navd.daemon.daemon import Daemon
+
+    cfg = load_daemon_config(None, ["zenoh.enabled=false",
+                                    "daemon.warm_up=false"])
+    d = Daemon(cfg, record_path="/dev/full", handle_signals=False)
+    d.recorder = RecordingWriter("/dev/full", {}, 50.0)
+    d._record(_imu((1 << 63) + 1))  # cannot be packed: skipped, counted
+    assert d.record_errors == 1 and d.recorder is not None
+    with caplog.at_level(logging.WARNING):
+        for k in range(1, 5000):  # fills the write buffer: ENOSPC
+            d._record(_imu(k * 1000))
+            if d.recorder is None:
+                break
+    assert d.recorder is None and d.record_errors == 2
+    assert "No space left" in d.status()["recording"]["stopped"]
+    assert any("recording /dev/full stopped" in r.message for r in caplog.records)
+    d._close()
+
+
 def test_not_a_recording(tmp_path: Path) -> None:
     from navd.io.recording import RecordingError
 

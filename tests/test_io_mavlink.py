@@ -262,6 +262,9 @@ def test_hil_gps_velocity_cm_per_s() -> None:
         ({"vel_e": math.nan}, "gnss_nonfinite"),
         ({"h_acc_m": math.inf}, "gnss_nonfinite"),
         ({"t_us": 0}, "gnss_no_timestamp"),
+        # a uint64 time beyond int64 (issue 16 item 2's frame): no clock, a crafted frame
+        ({"t_us": (1 << 63) + 1}, "gnss_time_out_of_range"),
+        ({"t_us": (1 << 53) + 1}, "gnss_time_out_of_range"),
     ],
 )
 def test_gps_input_rejections_are_counted(kw: dict[str, object], reason: str) -> None:

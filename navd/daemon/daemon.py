@@ -22,6 +22,7 @@ and exits 1 (``Restart=on-failure``).  Configuration: :mod:`navd.config.daemon`.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import json
 import logging
@@ -48,9 +49,10 @@ from navd.daemon.sinks import (
 )
 from navd.daemon.sources import SampleQueue, Sources
 from navd.diag import RateLimitedLog
+from navd.io.common import Sample
 from navd.io.dronecan import DronecanEncoder
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink
-from navd.io.recording import RecordingWriter
+from navd.io.recording import RecordingError, RecordingWriter
 from navd.io.zenoh import ZenohPublisher
 from navd.pipeline import build_estimator, output_instant
 from navd.types import GnssSample, ImuSample, NavSolution
@@ -124,7 +126,9 @@ class Daemon:
         self.zenoh_sink: ZenohSink | None = None
         self.recorder: RecordingWriter | None = None
         self.record_path = record_path
+        self.record_stopped = ""  # why recording stopped early, if it did
         self.sink_errors = 0
+        self.record_errors = 0
         self._extra = list(extra_sinks)
         self._handle_signals = handle_signals
         self._stop = asyncio.Event()
@@ -227,7 +231,10 @@ class Daemon:
                 _log.warning("closing %s: %s", s.name, exc)
         self.sources.close()
         if self.recorder is not None:
-            self.recorder.close()
+            try:
+                self.recorder.close()
+            except OSError as exc:  # the last buffered records are lost; say so
+                _log.error("recording %s: cannot close: %s", self.recorder.path, exc)
 
     def save_biases(self) -> bool:
         """Write the learned biases to ``[bias_store] path`` if they are known well enough."""
@@ -260,12 +267,12 @@ class Daemon:
     # -- the estimator task -------------------------------------------------------------------
 
     async def _estimate(self) -> None:
-        est, rec, sinks, get = self.est, self.recorder, self.sinks, self.queue.get
+        est, sinks, get = self.est, self.sinks, self.queue.get
         n = 0
         while (item := await get()) is not None:
             recv_ns, s = item
-            if rec is not None:
-                rec.write(s)
+            if self.recorder is not None:
+                self._record(s)
             if output_instant(est, s):  # the one output rule (navd.pipeline)
                 sol: NavSolution | None = None
                 for sink in sinks:
@@ -276,6 +283,31 @@ class Daemon:
             n += 1
             if n % 64 == 0:
                 await asyncio.sleep(0)  # a long backlog must not starve the sockets
+
+    def _record(self, s: Sample) -> None:
+        """Append ``s`` to the recording.  A recording is a debugging aid: no sample and no
+        disk error may end the daemon because of it."""
+        rec = self.recorder
+        assert rec is not None
+        try:
+            rec.write(s)
+        except RecordingError as exc:  # a value outside the file's fields: skip, count
+            self.record_errors += 1
+            self.rlog.warn("record_refused", "recording: sample not written (%d so far): %s",
+                           self.record_errors, exc)
+        except OSError as exc:  # disk full, I/O error: a torn record may follow; stop it
+            self._stop_recording(exc)
+
+    def _stop_recording(self, exc: OSError) -> None:
+        rec = self.recorder
+        assert rec is not None
+        self.record_errors += 1
+        self.recorder = None
+        self.record_stopped = f"{type(exc).__name__}: {exc}"
+        _log.error("recording %s stopped after %d records: %s; navigation goes on",
+                   rec.path, rec.records, self.record_stopped)
+        with contextlib.suppress(OSError):  # already reported above; the file is what it is
+            rec.close()
 
     def _publish(self, sink: Sink, sol: NavSolution, recv_ns: int) -> None:
         try:
@@ -307,7 +339,10 @@ class Daemon:
                     self.rlog.warn(f"est_{name}", "estimator: %s +%d (total %d)", name, grew, n)
             seen = now_counts
             if self.recorder is not None:
-                self.recorder.flush()
+                try:
+                    self.recorder.flush()
+                except OSError as exc:
+                    self._stop_recording(exc)
             if time.monotonic() >= next_save:
                 next_save += self.cfg.bias_store.save_period
                 self.save_biases()
@@ -378,7 +413,11 @@ class Daemon:
         }
         if self.recorder is not None:
             out["recording"] = {"path": str(self.recorder.path),
-                                "records": self.recorder.records}
+                                "records": self.recorder.records,
+                                "errors": self.record_errors}
+        elif self.record_stopped:
+            out["recording"] = {"path": self.record_path, "stopped": self.record_stopped,
+                                "errors": self.record_errors}
         return out
 
     def _headline(self) -> tuple[str, str]:

@@ -18,7 +18,13 @@ from typing import ClassVar, Generic, Protocol, TypeVar
 from navd.diag import Counters, RateLimitedLog
 from navd.io.common import RateIntegrator, Rejector, Sample, SampleCallback, monotonic_us
 
-__all__ = ["DecoderBase", "SampleDelivery", "TimingSettings"]
+__all__ = ["MAX_SENSOR_T_US", "DecoderBase", "SampleDelivery", "TimingSettings"]
+
+# The largest sensor time accepted (2**53 us, ~285 years): every time stamp below it is exact
+# as a float64 and far from int64 overflow anywhere downstream (the estimator's arithmetic,
+# a recording's int64 field).  A uint64 wire field can hold anything up to 2**64 - 1; such a
+# value is a corrupt or crafted frame, never a clock.
+MAX_SENSOR_T_US = 1 << 53
 
 
 class TimingSettings(Protocol):
@@ -63,11 +69,16 @@ class DecoderBase(Generic[ConfigT]):
 
     def _stamp(self, sensor_t_us: int, recv_t_us: int, what: str) -> int | None:
         """The sample's time: the sensor's, or the receive time if so configured; None
-        (counted as ``<what>_no_timestamp``) when the sensor sent none."""
+        (counted as ``<what>_no_timestamp``) when the sensor sent none, or (counted as
+        ``<what>_time_out_of_range``) when it is beyond :data:`MAX_SENSOR_T_US`."""
         if self.config.use_receive_time:
             return recv_t_us
         if sensor_t_us <= 0:
             self._reject(f"{what}_no_timestamp", self.no_timestamp_detail)
+            return None
+        if sensor_t_us > MAX_SENSOR_T_US:
+            self._reject(f"{what}_time_out_of_range", "sensor time %d us is beyond 2**53 us",
+                         sensor_t_us)
             return None
         return sensor_t_us
 

@@ -62,7 +62,8 @@ Sample = ImuSample | GnssSample | PolSample
 
 
 class RecordingError(ValueError):
-    """The file is not a navd recording (or of an unknown format version)."""
+    """The file is not a navd recording (or of an unknown format version), or a sample
+    cannot be written to one (a value outside its binary field)."""
 
 
 class RecordingWriter:
@@ -84,10 +85,24 @@ class RecordingWriter:
         self.records = 0
 
     def write(self, s: Sample) -> None:
+        """Append one sample.  Raises :class:`RecordingError` (and writes nothing) when a
+        value does not fit its field, OSError when the file cannot be written."""
+        try:
+            blob = self._encode(s)
+        except (struct.error, TypeError, ValueError, OverflowError) as exc:
+            # The record is built whole before anything is written, so a refused sample
+            # leaves the file a valid recording.
+            raise RecordingError(f"cannot record {type(s).__name__} at t_us={s.t_us!r}: "
+                                 f"{exc}") from exc
+        self._fh.write(blob)
+        self.records += 1
+
+    @staticmethod
+    def _encode(s: Sample) -> bytes:
         if isinstance(s, ImuSample):
-            self._fh.write(b"I" + _IMU.pack(s.t_us, s.dt_us, s.dtheta_x, s.dtheta_y,
-                                            s.dtheta_z, s.dvel_x, s.dvel_y, s.dvel_z))
-        elif isinstance(s, GnssSample):
+            return b"I" + _IMU.pack(s.t_us, s.dt_us, s.dtheta_x, s.dtheta_y,
+                                    s.dtheta_z, s.dvel_x, s.dvel_y, s.dvel_z)
+        if isinstance(s, GnssSample):
             flags = (_HAS_POS if s.pos_ecef_m is not None else 0) | (
                 _HAS_VEL if s.vel_ecef_mps is not None else 0)
             parts = [b"G", _GNSS.pack(s.t_us, s.lat_rad, s.lon_rad, s.alt_m, s.vel_n, s.vel_e,
@@ -97,10 +112,8 @@ class RecordingWriter:
                 parts.append(_VEC3.pack(*s.pos_ecef_m))
             if s.vel_ecef_mps is not None:
                 parts.append(_VEC3.pack(*s.vel_ecef_mps))
-            self._fh.write(b"".join(parts))
-        else:
-            self._fh.write(b"P" + _POL.pack(s.t_us, s.aop_rad, s.dop, s.utc_unix_s))
-        self.records += 1
+            return b"".join(parts)
+        return b"P" + _POL.pack(s.t_us, s.aop_rad, s.dop, s.utc_unix_s)
 
     def flush(self) -> None:
         self._fh.flush()
