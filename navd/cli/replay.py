@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from navd.config import ConfigError, apply_overrides, load_config
+from navd.config.daemon import RUN_ONLY_SECTIONS, DaemonConfig
 from navd.core.estimator import Estimator
 from navd.io.csv_replay import (
     ReadReport,
@@ -29,6 +30,7 @@ from navd.pipeline import build_estimator, solutions
 from navd.types import Sample
 
 if TYPE_CHECKING:
+    from navd.config import NavConfig
     from navd.io.logs import AidingWriter
 
 
@@ -134,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     counters = dict(est.counters)
     print(f"navd replay: {rows} solution rows -> {out}; skipped rows: {len(rep.issues)}; "
           f"estimator: {counters}", file=sys.stderr)
-    return 0
+    return _exit_code(rows, est)
 
 
 def _replay_recording(a: argparse.Namespace) -> int:
@@ -151,7 +153,7 @@ def _replay_recording(a: argparse.Namespace) -> int:
             tables = load_config(a.config, a.set)
         else:  # the daemon's own configuration, --set applied on top
             tables = apply_overrides(copy.deepcopy(rec.config), a.set)
-        est = build_estimator(tables)
+        est = build_estimator(_checked(tables, a.set, from_file=bool(a.config)))
     except ConfigError as exc:
         print(f"navd replay: config error: {exc}", file=sys.stderr)
         return 2
@@ -170,7 +172,46 @@ def _replay_recording(a: argparse.Namespace) -> int:
               "ignored)", file=sys.stderr)
     print(f"navd replay: {rows} solution rows at {rate:g} Hz -> {out}; "
           f"estimator: {dict(est.counters)}", file=sys.stderr)
-    return 0
+    return _exit_code(rows, est)
+
+
+def _exit_code(rows: int, est: Estimator) -> int:
+    """0 when the replay produced a solution; else 1, saying why (an empty solution file is
+    never a success: a script would go on to score nothing)."""
+    if rows > 0:
+        return 0
+    c = est.counters
+    if c.get("imu", 0) == 0:
+        why = "no IMU sample reached the estimator (none in the input, or all refused)"
+    elif c.get("gnss", 0) == 0:
+        why = ("no GNSS fix reached the estimator, and navigation starts at the first fix "
+               "(none in the input, or all refused)")
+    else:
+        why = (f"the estimator never started navigating: {c.get('imu', 0)} IMU samples, "
+               f"{c.get('gnss', 0)} GNSS fixes; see the estimator counters above for what "
+               "it refused")
+    print(f"navd replay: error: no solution rows: {why}", file=sys.stderr)
+    return 1
+
+
+def _checked(tables: dict[str, Any], overrides: list[str], *, from_file: bool) -> NavConfig:
+    """Validate the whole configuration as ``navd run`` would (unknown sections and keys are
+    errors; ConfigError), and say which given settings a replay does not use."""
+    cfg = DaemonConfig.from_dict(tables, need_input=False)
+    for ov in overrides:
+        key = ov.split("=", 1)[0].strip()
+        if key.split(".", 1)[0] in RUN_ONLY_SECTIONS:
+            print(f"navd replay: note: --set {key} has no effect on a replay: "
+                  f"[{key.split('.', 1)[0]}] configures `navd run` (its inputs, outputs and "
+                  "service); a replay takes samples and their time stamps from its files",
+                  file=sys.stderr)
+    if from_file:
+        unused = sorted(s for s in tables if s in RUN_ONLY_SECTIONS)
+        if unused:
+            print("navd replay: note: config sections " + ", ".join(f"[{s}]" for s in unused)
+                  + " configure `navd run` only; a replay checks but does not use them",
+                  file=sys.stderr)
+    return cfg.nav
 
 
 # -- flight logs (navd.io.logs): --log FILE [--format ...] ------------------------------------
@@ -219,8 +260,10 @@ def _aiding(path: str | None) -> contextlib.AbstractContextManager[AidingWriter 
 
 
 def _build(a: argparse.Namespace) -> Estimator:
-    """The estimator exactly as the daemon builds it (:func:`navd.pipeline.build_estimator`)."""
-    return build_estimator(load_config(a.config, a.set))
+    """The estimator exactly as the daemon builds it (:func:`navd.pipeline.build_estimator`),
+    from a configuration validated as a whole."""
+    return build_estimator(_checked(load_config(a.config, a.set), a.set,
+                                    from_file=bool(a.config)))
 
 
 def _replay_log(a: argparse.Namespace) -> int:
@@ -260,4 +303,4 @@ def _replay_log(a: argparse.Namespace) -> int:
     tmp.replace(out)
     print(f"navd replay: {rows} solution rows -> {out}; course update: {est.course_status}; "
           f"estimator: {dict(est.counters)}", file=sys.stderr)
-    return 0
+    return _exit_code(rows, est)

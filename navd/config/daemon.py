@@ -28,6 +28,7 @@ from navd.config.load import setting as _f
 from navd.io.mavlink import GNSS_MESSAGES, IMU_MESSAGES, parse_mavlink_url
 
 __all__ = [
+    "RUN_ONLY_SECTIONS",
     "ZENOH_BAD_CHUNK_CHARS",
     "BiasStoreSection",
     "DaemonConfig",
@@ -210,6 +211,9 @@ _SECTIONS: dict[str, type[Any]] = {
     "zenoh": ZenohSection,
     "bias_store": BiasStoreSection,
 }
+# sections that configure `navd run` only (inputs, outputs, the service): a replay reads its
+# samples, with their own time stamps, from files and validates but does not use these
+RUN_ONLY_SECTIONS = frozenset(_SECTIONS)
 # sections of the estimator's NavConfig (estimator sections, [polarization], [dov])
 _NAV_SECTIONS = frozenset({f.name for f in fields(EstimatorConfig)} | {"polarization", "dov"})
 
@@ -241,7 +245,9 @@ class DaemonConfig:
         return self.nav.dov
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> DaemonConfig:
+    def from_dict(cls, data: dict[str, Any], *, need_input: bool = True) -> DaemonConfig:
+        """Validate every section and key of ``data``.  ``need_input=False`` (a replay, which
+        reads files) accepts a configuration without an enabled input."""
         known = set(_SECTIONS) | _NAV_SECTIONS
         unknown = sorted(set(data) - known)
         if unknown:
@@ -249,7 +255,8 @@ class DaemonConfig:
                               f"{sorted(known)}")
         kw: dict[str, Any] = {name: build_section(sec, name, data.get(name, {}))
                               for name, sec in _SECTIONS.items()}
-        if not (kw["mavlink"].enabled and kw["mavlink"].listen) and not kw["dronecan"].enabled:
+        has_input = (kw["mavlink"].enabled and kw["mavlink"].listen) or kw["dronecan"].enabled
+        if need_input and not has_input:
             raise ConfigError("no input: enable [mavlink] (with listen) or [dronecan]")
         return cls(**kw, nav=NavConfig.from_tables(data), tables=data)
 
