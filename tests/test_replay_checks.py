@@ -95,3 +95,17 @@ def test_settings_a_replay_does_not_use_are_named(src: Source, tmp_path: Path,
                       "--config", str(root / "config" / "navd.toml")])
     err = capsys.readouterr().err
     assert rc == 0 and "[mavlink]" in err and "a replay checks but does not use" in err, err
+
+
+@pytest.mark.parametrize("flag", ["--out", "--reference-out", "--aiding-out"])
+def test_missing_output_directory_is_a_clear_error(src: Source, tmp_path: Path, flag: str,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    log = tmp_path / "run.tlog"
+    write_tlog(log, src)
+    outs = {"--out": str(tmp_path / "s.csv")}
+    outs[flag] = str(tmp_path / "nowhere" / "x.csv")
+    args = ["--log", str(log), "--quiet"] + [x for kv in outs.items() for x in kv]
+    rc = replay_main(args)
+    err = capsys.readouterr().err
+    assert rc == 2 and f"{flag} " in err and "does not exist" in err, err
+    assert "mkdir -p" in err and "Traceback" not in err

@@ -89,6 +89,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_log_arguments(ap)
     a = ap.parse_args(argv)
+    missing = _missing_output_dir(a)
+    if missing:
+        print(f"navd replay: {missing}", file=sys.stderr)
+        return 2
     if a.log is not None:
         if a.imu or a.gnss or a.recording:
             ap.error("--log replaces --imu/--gnss/--recording")
@@ -173,6 +177,21 @@ def _replay_recording(a: argparse.Namespace) -> int:
     print(f"navd replay: {rows} solution rows at {rate:g} Hz -> {out}; "
           f"estimator: {dict(est.counters)}", file=sys.stderr)
     return _exit_code(rows, est)
+
+
+def _missing_output_dir(a: argparse.Namespace) -> str:
+    """Why an output file cannot be created ('' if all can): checked before the replay, which
+    may take minutes, rather than a traceback at its end."""
+    for opt in ("out", "reference_out", "aiding_out"):
+        path = getattr(a, opt, None)
+        if path is None:
+            continue
+        parent = Path(path).parent
+        if not parent.is_dir():
+            flag = "--" + opt.replace("_", "-")
+            return (f"{flag} {path}: directory {parent} does not exist "
+                    f"(create it first: mkdir -p {parent})")
+    return ""
 
 
 def _exit_code(rows: int, est: Estimator) -> int:

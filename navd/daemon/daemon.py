@@ -24,9 +24,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import errno
 import json
 import logging
 import math
+import re
 import signal
 import time
 from collections.abc import Sequence
@@ -47,7 +49,7 @@ from navd.daemon.sinks import (
     Sink,
     ZenohSink,
 )
-from navd.daemon.sources import SampleQueue, Sources
+from navd.daemon.sources import InputOpenError, SampleQueue, Sources
 from navd.diag import RateLimitedLog
 from navd.io.common import Sample
 from navd.io.dronecan import DronecanEncoder
@@ -57,7 +59,7 @@ from navd.io.zenoh import ZenohPublisher
 from navd.pipeline import build_estimator, output_instant
 from navd.types import GnssSample, ImuSample, NavSolution
 
-__all__ = ["Daemon", "warm_up"]
+__all__ = ["Daemon", "StartupError", "explain_open_error", "warm_up"]
 
 _log = logging.getLogger("navd")
 
@@ -71,6 +73,39 @@ _INFO_COUNTERS = frozenset({"imu", "gnss", "nav_start", "heading_aligned_from_co
 
 def _is_refusal(counter: str) -> bool:
     return counter not in _INFO_COUNTERS and not counter.endswith("_accepted")
+
+
+# " at /root/.cargo/.../tcp.rs:61." in Zenoh's errors: where in Zenoh's Rust source, which
+# tells an operator nothing
+_RUST_SOURCE = re.compile(r"\s*at /\S+\.rs:\d+\.?")
+
+
+class StartupError(Exception):
+    """An input or output could not be opened; the message names the setting and the fix."""
+
+
+def explain_open_error(key: str, value: object, exc: BaseException) -> str:
+    """One line for an input/output that failed to open: the setting (``section.key``), its
+    value, the cause without Rust source paths, and what to do about it."""
+    cause = _RUST_SOURCE.sub("", str(exc)).strip() or type(exc).__name__
+    # uvloop wraps the OS error ("could not bind to local_addr ..."): its errno is the cause's
+    err: int | None = None
+    e: BaseException | None = exc
+    while e is not None and err is None:
+        err = getattr(e, "errno", None)
+        if err is not None and (strerror := getattr(e, "strerror", None)) and strerror not in cause:
+            cause = f"{cause} ({strerror})"
+        e = e.__cause__
+    section, name = key.split(".", 1)
+    text = f"[{section}] {name} = {value!r}: cannot open: {cause}"
+    in_use = err == errno.EADDRINUSE or "address already in use" in cause.lower()
+    if in_use:
+        return (f"{text}. The port is in use (another navd, or another program): stop it, "
+                f"or give a free port with --set {key}=... (or in the config file)")
+    if err in (errno.EADDRNOTAVAIL, errno.ENOENT, errno.EACCES):
+        return (f"{text}. Check the address/device and its permissions; change it with "
+                f"--set {key}=... (or in the config file)")
+    return f"{text}. Change it with --set {key}=... (or in the config file)"
 
 
 # no sensor-time progress for this long (host time) means the input has stalled
@@ -156,6 +191,10 @@ class Daemon:
             _log.info("estimator kernels ready in %.1f s", warm_up(self.cfg.nav))
         try:
             inputs = await self._open()
+        except StartupError as exc:  # says which setting and what to do
+            _log.error("startup failed: %s", exc)
+            self._close()
+            return 1
         except Exception as exc:  # any failure to open is fatal and must say what failed
             _log.error("startup failed: %s: %s", type(exc).__name__, exc)
             self._close()
@@ -197,13 +236,26 @@ class Daemon:
     async def _open(self) -> list[str]:
         c = self.cfg
         if c.zenoh.enabled:
-            self.zenoh_sink = ZenohSink(ZenohPublisher(zenoh_session_config(c.zenoh)),
-                                        c.zenoh.attitude_rate)
-        inputs = await self.sources.open()
+            try:
+                session = ZenohPublisher(zenoh_session_config(c.zenoh))
+            except Exception as exc:  # zenoh.ZError: listen/connect endpoints
+                key = "zenoh.listen" if c.zenoh.listen else "zenoh.connect"
+                raise StartupError(explain_open_error(
+                    key, list(c.zenoh.listen or c.zenoh.connect), exc)) from exc
+            self.zenoh_sink = ZenohSink(session, c.zenoh.attitude_rate)
+        try:
+            inputs = await self.sources.open()
+        except InputOpenError as exc:
+            section, name = exc.config_key.split(".", 1)
+            value = getattr(getattr(c, section), name, "?")
+            raise StartupError(explain_open_error(exc.config_key, value, exc.cause)) from exc
         m = c.mavlink
         if m.enabled and m.send:
             shared = m.send == "same"
-            link = self.sources.mavlink if shared else await MavlinkLink.open(m.send)
+            try:
+                link = self.sources.mavlink if shared else await MavlinkLink.open(m.send)
+            except Exception as exc:
+                raise StartupError(explain_open_error("mavlink.send", m.send, exc)) from exc
             assert link is not None  # config validation: "same" needs a listen link
             self.mavlink_sink = MavlinkSink(
                 link, MavlinkEncoder(m.sysid, m.compid, m.geoid_sep), m.attitude_rate,
@@ -219,7 +271,12 @@ class Daemon:
         self.sinks = sinks + self._extra
         if self.record_path:
             rate = 1e6 / self.sinks[0].schedule.period_us if self.sinks else m.attitude_rate
-            self.recorder = RecordingWriter(self.record_path, c.tables, rate)
+            try:
+                self.recorder = RecordingWriter(self.record_path, c.tables, rate)
+            except OSError as exc:
+                raise StartupError(f"--record {self.record_path}: cannot write: "
+                                   f"{exc.strerror or exc} (does its directory exist?)"
+                                   ) from exc
             _log.info("recording pushed samples to %s", self.record_path)
         return inputs
 

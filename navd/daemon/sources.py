@@ -39,6 +39,7 @@ __all__ = [
     "DronecanInput",
     "Input",
     "InputKind",
+    "InputOpenError",
     "MavlinkInput",
     "ReceiveClock",
     "SampleQueue",
@@ -127,6 +128,7 @@ class Input(Protocol):
     """One input kind: opens its link onto the queue, reports its decoder's counters."""
 
     kind: ClassVar[str]  # key under ``inputs`` in the status
+    config_key: ClassVar[str]  # the setting that names the link, for errors: "mavlink.listen"
 
     @property
     def link(self) -> object:
@@ -168,6 +170,7 @@ class MavlinkInput(_DecodingInput[MavlinkDecoder, MavlinkLink]):
     """``[mavlink] listen``: a MAVLink link whose send side a sink may share (send = "same")."""
 
     kind: ClassVar[str] = "mavlink"
+    config_key: ClassVar[str] = "mavlink.listen"
 
     @staticmethod
     def wanted(cfg: DaemonConfig) -> bool:
@@ -199,6 +202,7 @@ class DronecanInput(_DecodingInput[DronecanDecoder, DronecanLink]):
     """``[dronecan]``: a python-can bus; the DroneCAN sink sends on the same bus."""
 
     kind: ClassVar[str] = "dronecan"
+    config_key: ClassVar[str] = "dronecan.channel"
 
     @staticmethod
     def wanted(cfg: DaemonConfig) -> bool:
@@ -226,6 +230,9 @@ class InputKind(Protocol):
     @property
     def kind(self) -> str: ...
 
+    @property
+    def config_key(self) -> str: ...
+
     def wanted(self, cfg: DaemonConfig) -> bool: ...
 
     def __call__(self, cfg: DaemonConfig) -> Input: ...
@@ -233,6 +240,15 @@ class InputKind(Protocol):
 
 # The input kinds the daemon knows, opened (and closed) in this order.
 INPUT_KINDS: tuple[InputKind, ...] = (MavlinkInput, DronecanInput)
+
+
+class InputOpenError(Exception):
+    """An input could not be opened: which setting names it, and the underlying error."""
+
+    def __init__(self, config_key: str, cause: BaseException) -> None:
+        super().__init__(f"{config_key}: {cause}")
+        self.config_key = config_key
+        self.cause = cause
 
 
 class Sources:
@@ -244,15 +260,18 @@ class Sources:
         self.inputs: dict[str, Input] = {}
 
     async def open(self) -> list[str]:
-        """Open every configured input; return descriptions.  Raises OSError & co. on failure
-        (after closing what was already open)."""
+        """Open every configured input; return descriptions.  Raises :class:`InputOpenError`
+        naming the input's setting (after closing what was already open)."""
         opened: list[str] = []
         try:
             for kind in INPUT_KINDS:
                 if kind.wanted(self.cfg):
                     inp = kind(self.cfg)
                     self.inputs[kind.kind] = inp
-                    opened.append(await inp.open(self.queue))
+                    try:
+                        opened.append(await inp.open(self.queue))
+                    except Exception as exc:
+                        raise InputOpenError(kind.config_key, exc) from exc
         except BaseException:
             self.close()
             raise
