@@ -8,13 +8,16 @@ Messages (pymavlink applies the format multipliers, so values are in the units b
           held over the interval to the previous one (RateIntegrator), as the MAVLink adapter
           does with HIGHRES_IMU.
     GPS   TimeUS (logging time, not time of validity), I, Status (>= 3: 3D fix), Lat/Lng (deg),
+          [older firmware (ArduCopter <= 3.3, Plane/Rover of that age): ``TimeMS`` is GPS
+          time of week (ms) next to ``Week``; ``T`` (ms since boot) is the time.  Without
+          ``T``, the boot time of the message logged just before it is used.]
           Alt (m, **MSL**), Spd (m/s), GCrs (deg), VZ (m/s, down positive: AP_GPS velocity is
           NED).  vN = Spd cos GCrs, vE = Spd sin GCrs, vD = VZ.
     GPA   HAcc, VAcc (m), SAcc (m/s) and, where logged, Und (geoid undulation, m) and VV
           (have vertical velocity); matched to GPS by TimeUS and instance.  Height above the
           ellipsoid = Alt + Und if Und is logged, else Alt + geoid_sep.
     ATT   Roll, Pitch, Yaw (deg; yaw 0..360) of the onboard AHRS/EKF as the reference
-          (AHRS2 if there is no ATT).
+          (AHRS2, named AHR2 in the log, if there is no ATT).
 
 Damage: messages are read in sequence and the offset of each is checked; the first skipped
 bytes (no 0xA3 0x95 header where a message should start, or an unknown type) or a message cut
@@ -45,12 +48,30 @@ from navd.units import DEG
 _FIX = {3: FixType.FIX_3D, 4: FixType.DGPS, 5: FixType.RTK_FLOAT, 6: FixType.RTK_FIXED}
 
 
+# words in the firmware banner (a MSG message) that name the vehicle type
+_VEHICLES = ("Copter", "Plane", "Rover", "Sub", "Tracker", "Blimp")
+
+
 def _time_us(m: Any) -> int | None:
     t = getattr(m, "TimeUS", None)
     if t is not None:
         return int(t)
     t = getattr(m, "TimeMS", None)
     return int(t) * 1000 if t is not None else None
+
+
+def _gps_time_us(m: Any, boot_us_before: int | None) -> int | None:
+    """A GPS message's time since boot (us).  ArduPilot logs up to ArduCopter 3.3 store GPS
+    time of week in ``TimeMS`` (about 6e8 ms on a Tuesday) with ``Week`` beside it, and the
+    boot time in ``T`` (ms); read as boot time, TOW put every fix days after the IMU."""
+    fields = m.get_fieldnames()
+    if "TimeUS" in fields:
+        return int(m.TimeUS)
+    if "Week" in fields:  # TimeMS is GPS time of week
+        if "T" in fields:
+            return int(m.T) * 1000
+        return boot_us_before  # no boot time logged: the message logged before it
+    return _time_us(m)
 
 
 def _instance(m: Any, name: str, base: str) -> int:
@@ -81,6 +102,8 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
     att: list[tuple[int, float, float, float]] = []
     ahrs2: list[tuple[int, float, float, float]] = []
     damage: LogDamage | None = None
+    boot_us: int | None = None  # boot time of the last IMU message read (any instance)
+    firmware = ""  # the MSG naming the vehicle firmware ("APM:Copter V3.3-dev", "ArduPlane")
     data_len = int(r.data_len)
     try:
         with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
@@ -101,17 +124,16 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
                     break
                 name = m.get_type()
                 if name.startswith("IMU") and name[3:] in ("", "2", "3"):
-                    if _instance(m, name, "IMU") != opts.imu_instance:
-                        continue
                     t = _time_us(m)
-                    if t is None:
+                    boot_us = t if t is not None else boot_us
+                    if _instance(m, name, "IMU") != opts.imu_instance or t is None:
                         continue
                     b.add_rates(t, (float(m.GyrX), float(m.GyrY), float(m.GyrZ)),
                                 (float(m.AccX), float(m.AccY), float(m.AccZ)))
                 elif name.startswith("GPS") and name[3:] in ("", "2"):
                     if _instance(m, name, "GPS") != opts.gnss_instance:
                         continue
-                    t = _time_us(m)
+                    t = _gps_time_us(m, boot_us)
                     if t is not None:
                         gps_rows.append((t, int(m.Status), m))
                 elif name.startswith("GPA") and name[3:] in ("", "2"):
@@ -122,7 +144,11 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
                     t = _time_us(m)
                     if t is not None:
                         att.append((t, float(m.Roll), float(m.Pitch), float(m.Yaw)))
-                elif name == "AHRS2":
+                elif name == "MSG" and not firmware:
+                    text = str(getattr(m, "Message", ""))
+                    if any(v in text for v in _VEHICLES):
+                        firmware = text
+                elif name in ("AHRS2", "AHR2"):
                     t = _time_us(m)
                     if t is not None:
                         ahrs2.append((t, float(m.Roll), float(m.Pitch), float(m.Yaw)))
@@ -160,6 +186,8 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
     else:
         ref = Reference.empty()
     notes = []
+    if "Copter" in firmware:  # course over ground is not heading on a multirotor
+        notes.append(f"{firmware}: a multirotor; replay with --set filter.profile=multirotor")
     if not gpa:
         notes.append("no GPA messages: assumed GNSS accuracies from options")
     out = sink.getvalue().strip()

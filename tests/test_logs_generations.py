@@ -1,0 +1,61 @@
+"""Every generation of autopilot log reads onto one clock (issue 16 item 3).
+
+ArduCopter <= 3.3 DataFlash (log171.bin) stores GPS time of week in the GPS message's
+``TimeMS``; read as time since boot every fix lay days after the IMU and the replay produced 0
+rows.  The fixture writes that generation's exact formats (from log171's FMT messages).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fixtures.logwriters import Source, source_from_sim, write_dataflash_ac33
+
+from navd.cli.replay import main as replay_main
+from navd.io.logs import read_log
+from navd.types import GnssSample
+
+
+@pytest.fixture(scope="module")
+def src() -> Source:
+    return source_from_sim(20.0)
+
+
+@pytest.mark.parametrize("boot_time_in_gps", [True, False])
+def test_ac33_dataflash_gps_time_of_week_is_not_boot_time(src: Source, tmp_path: Path,
+                                                          boot_time_in_gps: bool) -> None:
+    p = tmp_path / "ac33.bin"
+    write_dataflash_ac33(p, src, boot_time_in_gps)
+    data = read_log(p)
+    assert data.fmt == "dataflash"
+    fixes = [s for s in data.samples() if isinstance(s, GnssSample)]
+    assert len(fixes) >= len(src.gnss) - 1
+    want = np.asarray([g.t_us // 1000 * 1000 for g in src.gnss])
+    got = np.asarray([g.t_us for g in fixes])
+    if boot_time_in_gps:  # T: the boot time of the fix, exactly
+        assert set(got) <= set(want)
+    else:  # no T: the IMU sample logged before it, within one IMU interval
+        k = np.searchsorted(want, got)
+        assert np.all(np.abs(got - want[np.clip(k, 0, len(want) - 1)]) <= 10_000)
+    assert data.reference.source == "ATT" and len(data.reference.t_us) == len(src.ref_t_us)
+    assert any("multirotor" in n for n in data.notes), data.notes
+
+
+def test_ac33_dataflash_replays_and_agrees_with_its_attitude(src: Source, tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]
+                                                            ) -> None:
+    p = tmp_path / "ac33.bin"
+    write_dataflash_ac33(p, src)
+    out, ref = tmp_path / "s.csv", tmp_path / "ref.csv"
+    rc = replay_main(["--log", str(p), "--out", str(out), "--reference-out", str(ref),
+                      "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    sol = np.genfromtxt(out, delimiter=",", names=True)
+    r = np.genfromtxt(ref, delimiter=",", names=True)
+    assert len(sol) > 0.9 * 50 * 19
+    late = sol["t_us"] > 5e6
+    for axis in ("roll_deg", "pitch_deg"):
+        err = sol[axis][late] - np.interp(sol["t_us"][late], r["t_us"], r[axis])
+        assert np.sqrt(np.mean(err**2)) < 0.5, axis
