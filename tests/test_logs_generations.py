@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fixtures.logwriters import Source, source_from_sim, write_dataflash_ac33
+from fixtures.logwriters import Source, source_from_sim, write_dataflash_ac33, write_ulog
 
 from navd.cli.replay import main as replay_main
 from navd.io.logs import read_log
@@ -59,3 +59,32 @@ def test_ac33_dataflash_replays_and_agrees_with_its_attitude(src: Source, tmp_pa
     for axis in ("roll_deg", "pitch_deg"):
         err = sol[axis][late] - np.interp(sol["t_us"][late], r["t_us"], r[axis])
         assert np.sqrt(np.mean(err**2)) < 0.5, axis
+
+
+def test_wrong_format_is_one_clear_error_not_a_flood(src: Source, tmp_path: Path,
+                                                     capfd: pytest.CaptureFixture[str]) -> None:
+    """Issue 16 item 5: --format dataflash on a ULog printed a line per byte, then exit 0."""
+    log = tmp_path / "run.ulg"
+    write_ulog(log, src)
+    rc = replay_main(["--log", str(log), "--format", "dataflash", "--out",
+                      str(tmp_path / "s.csv"), "--quiet"])
+    out, err = capfd.readouterr()
+    assert rc == 2, err
+    assert "--format dataflash, but the content is a ulog log" in err, err
+    assert len((out + err).splitlines()) < 5, (out + err)[:2000]
+
+
+def test_garbage_in_a_dataflash_log_is_counted_not_printed(src: Source, tmp_path: Path,
+                                                           capfd: pytest.CaptureFixture[str]
+                                                           ) -> None:
+    good = tmp_path / "good.bin"
+    write_dataflash_ac33(good, src)
+    bad = tmp_path / "bad.bin"
+    bad.write_bytes(b"\x00\x01" * 3000 + good.read_bytes())  # unreadable start
+    rc = replay_main(["--log", str(bad), "--format", "dataflash", "--out",
+                      str(tmp_path / "s.csv"), "--quiet"])
+    out, err = capfd.readouterr()
+    assert "bad header" not in out, out[:500]
+    lines = (out + err).splitlines()
+    assert len(lines) < 12, (out + err)[:2000]
+    assert rc != 0 or any("unreadable" in ln for ln in lines), err

@@ -104,6 +104,16 @@ def read_log(path: str | Path, fmt: str | None = None,
     """Read a whole log (format detected unless ``fmt`` is given)."""
     opts = options if options is not None else LogOptions()
     kind = fmt or detect_format(path)
+    if fmt is not None and fmt != "csv":
+        # A wrong --format made the DataFlash decoder print one "bad header" line per byte
+        # of a ULog (543,231 lines) before reading nothing; refuse it up front instead.
+        try:
+            seen = detect_format(path)
+        except LogFormatError:
+            seen = None  # unrecognised (maybe damaged) content: the user's word stands
+        if seen is not None and seen != fmt:
+            raise LogFormatError(f"{path}: --format {fmt}, but the content is a {seen} log; "
+                                 f"leave --format out or give --format {seen}")
     if kind == "ulog":
         from navd.io.logs.ulog import read_ulog
 

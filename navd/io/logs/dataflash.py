@@ -29,6 +29,10 @@ from __future__ import annotations
 import contextlib
 import io
 import math
+import os
+import sys
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -83,6 +87,44 @@ def _instance(m: Any, name: str, base: str) -> int:
     return int(suffix) - 1 if suffix.isdigit() else 0
 
 
+@contextlib.contextmanager
+def _c_output_to(sink: io.StringIO) -> Iterator[None]:
+    """Capture what C code writes to fd 1/2 (pymavlink's Cython indexer prints one "bad
+    header" line per unreadable byte, past any sys.stdout redirect) into ``sink``."""
+    saved: list[int] = []
+    try:
+        tmp = tempfile.TemporaryFile()  # noqa: SIM115 - closed below
+        sys.stdout.flush()
+        sys.stderr.flush()
+        for fd in (1, 2):
+            saved.append(os.dup(fd))
+            os.dup2(tmp.fileno(), fd)
+    except (OSError, ValueError):  # no usable fds (embedded): leave output alone
+        for fd, old in zip((1, 2), saved, strict=False):
+            os.dup2(old, fd)
+            os.close(old)
+        yield
+        return
+    try:
+        yield
+    finally:
+        for fd, old in zip((1, 2), saved, strict=True):
+            os.dup2(old, fd)
+            os.close(old)
+        tmp.seek(0)
+        sink.write(tmp.read().decode(errors="replace"))
+        tmp.close()
+
+
+def _summarise(output: str) -> str:
+    """pymavlink's console output for a note: repeated "bad header" lines counted, not kept."""
+    lines = [ln for ln in output.splitlines() if ln.strip()]
+    bad = [ln for ln in lines if ln.startswith("bad header")]
+    rest = [ln for ln in lines if not ln.startswith("bad header")]
+    parts = [f"{len(bad)} unreadable bytes skipped (first: {bad[0]})"] if bad else []
+    return "; ".join(parts + rest)[:500]
+
+
 def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogData:
     from pymavlink import DFReader
 
@@ -92,7 +134,8 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
         raise LogFormatError(f"no such file: {p}")
     sink = io.StringIO()
     try:
-        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+        with (contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink),
+              _c_output_to(sink)):
             r = DFReader.DFReader_binary(p, zero_time_base=False)
     except Exception as exc:  # pymavlink raises assorted types on garbage
         raise LogFormatError(f"{p}: pymavlink cannot open it as DataFlash: {exc}") from exc
@@ -190,9 +233,9 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
         notes.append(f"{firmware}: a multirotor; replay with --set filter.profile=multirotor")
     if not gpa:
         notes.append("no GPA messages: assumed GNSS accuracies from options")
-    out = sink.getvalue().strip()
+    out = _summarise(sink.getvalue())
     if out:
-        notes.append("pymavlink: " + out.replace("\n", "; ")[:500])
+        notes.append("pymavlink: " + out)
     with contextlib.suppress(Exception):
         r.data_map.close()
         r.filehandle.close()
