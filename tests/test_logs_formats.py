@@ -133,7 +133,7 @@ def test_format_option_and_unknown_files(src: Source, tmp_path: Path,
     assert "unknown log format" in capsys.readouterr().err
     # a wrong --format is refused with the reader's message, not a traceback
     assert replay_main(["--log", str(p), "--format", "ulog", "--out", str(out), "--quiet"]) == 2
-    assert "not a ULog" in capsys.readouterr().err
+    assert "--format ulog, but the content is a dataflash log" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         replay_main(["--log", str(p), "--imu", "x.csv", "--out", str(out)])
 
