@@ -63,14 +63,18 @@ def imu_reason(wx: float, wy: float, wz: float, fx: float, fy: float, fz: float,
     Rates (rad/s, m/s^2) with the limits of :class:`Limits`, or increments over dt
     (rad, m/s) with the limits times dt.  Body FRD.
     """
+    w2 = wx * wx + wy * wy + wz * wz
+    f2 = fx * fx + fy * fy + fz * fz
+    # one comparison each on the kHz path: NaN compares false, so a non-finite value
+    # falls through to the classification below
+    if w2 <= max_gyro * max_gyro and f2 <= max_accel * max_accel:
+        return None
     if not (math.isfinite(wx) and math.isfinite(wy) and math.isfinite(wz)
             and math.isfinite(fx) and math.isfinite(fy) and math.isfinite(fz)):
         return "imu_nonfinite"
-    if wx * wx + wy * wy + wz * wz > max_gyro * max_gyro:
+    if w2 > max_gyro * max_gyro:
         return "imu_absurd_gyro"
-    if fx * fx + fy * fy + fz * fz > max_accel * max_accel:
-        return "imu_absurd_accel"
-    return None
+    return "imu_absurd_accel"
 
 
 def gnss_reason(lat_rad: float, lon_rad: float, alt_m: float, vel_n: float, vel_e: float,
