@@ -162,6 +162,17 @@ def cmd_stream(args: argparse.Namespace) -> int:
     return 0
 
 
+class _DefaultsFormatter(argparse.HelpFormatter):
+    """Appends "(default: X)" where an option has a real default; argparse's own
+    ArgumentDefaultsHelpFormatter also prints None, False and [] for flags and lists."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if action.default in (None, False, [], argparse.SUPPRESS) or "%(default)" in text:
+            return text
+        return f"{text} (default: %(default)s)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="firmware-sim", description=__doc__.splitlines()[0]
                                 if __doc__ else None)
@@ -178,18 +189,26 @@ def build_parser() -> argparse.ArgumentParser:
     g.set_defaults(func=cmd_generate)
     ls = sub.add_parser("list", help="list the built-in scenarios")
     ls.set_defaults(func=cmd_list)
-    st = sub.add_parser("stream", help="send a scenario over MAVLink UDP or DroneCAN in "
-                        "(scaled) real time")
+    # defaults shown: a user wiring the stream to a daemon needs the target, messages, IDs
+    st = sub.add_parser(
+        "stream", help="send a scenario over MAVLink UDP or DroneCAN in (scaled) real time",
+        formatter_class=_DefaultsFormatter,
+        description="Simulate a scenario and send its IMU samples and GNSS fixes, as a "
+                    "sensor's firmware would, over MAVLink UDP or DroneCAN, paced on the "
+                    "sensor clock (--rate-factor 1: real time; car480 then takes 480 s). "
+                    "Ctrl-C or SIGTERM ends it with a summary of what was sent.")
     st.add_argument("--scenario", required=True, help="built-in name or path to a .toml file")
-    st.add_argument("--transport", choices=["mavlink", "dronecan"], default="mavlink")
+    st.add_argument("--transport", choices=["mavlink", "dronecan"], default="mavlink",
+                    help="link to send on")
     st.add_argument("--rate-factor", type=float, default=1.0,
                     help="sensor seconds per wall second: 1 real time, 0 as fast as possible")
     st.add_argument("--target", default="udp:127.0.0.1:14560",
                     help="MAVLink: UDP destination udp:HOST:PORT")
     st.add_argument("--imu-message", default="HIGHRES_IMU",
-                    choices=["HIGHRES_IMU", "SCALED_IMU"])
+                    choices=["HIGHRES_IMU", "SCALED_IMU"], help="MAVLink IMU message")
     st.add_argument("--gnss-message", default="GPS_INPUT",
-                    choices=["GPS_INPUT", "GPS_RAW_INT", "HIL_GPS"])
+                    choices=["GPS_INPUT", "GPS_RAW_INT", "HIL_GPS"],
+                    help="MAVLink GNSS message")
     st.add_argument("--sysid", type=int, default=1, help="MAVLink source system ID")
     st.add_argument("--compid", type=int, default=1, help="MAVLink source component ID")
     st.add_argument("--interface", default="socketcan", help="DroneCAN: python-can interface")

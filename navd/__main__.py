@@ -18,8 +18,9 @@ _OPTIONAL = {"matplotlib": "plot", "netCDF4": "dov", "gravitas": "dov", "pyulog"
 
 
 def _usage() -> str:
-    lines = ["usage: navd COMMAND [options]", "", "commands:"]
+    lines = ["usage: navd COMMAND [options]", "       navd --version", "", "commands:"]
     lines += [f"  {name:<8} {desc}" for name, (_, desc) in _COMMANDS.items()]
+    lines += ["", "`navd COMMAND --help` describes each command's options."]
     return "\n".join(lines)
 
 
@@ -28,6 +29,12 @@ def main(argv: list[str] | None = None) -> int:
     if not args or args[0] in ("-h", "--help"):
         print(_usage())
         return 0 if args else 2
+    if args[0] in ("-V", "--version"):
+        # the installed package's version, as pyproject.toml declares it
+        from navd import __version__
+
+        print(f"navd {__version__}")
+        return 0
     cmd, rest = args[0], args[1:]
     if cmd not in _COMMANDS:
         print(f"navd: unknown command {cmd!r}\n{_usage()}", file=sys.stderr)

@@ -69,10 +69,19 @@ def _count_lines(path: Path) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="navd replay", description=__doc__)
+    # argparse cannot mark "one of these groups" as required in the usage line, so the
+    # description says it, and the check below names all three choices
+    ap = argparse.ArgumentParser(
+        prog="navd replay",
+        description="Run the estimator over recorded data exactly as the daemon would, and "
+                    "write its solution CSV. Input: one of --imu and --gnss (replay CSVs, "
+                    "docs/replay-format.md), --recording (a `navd run --record` file) or "
+                    "--log (a flight log) is required. Rows follow the daemon's output rule: "
+                    "a solution at the first IMU sample at or past each multiple of the "
+                    "output period on the sensor clock.")
     ap.add_argument("--config", help="TOML config (default: built-in defaults)")
-    ap.add_argument("--imu", help="IMU CSV (rates or increments)")
-    ap.add_argument("--gnss", help="GNSS CSV")
+    ap.add_argument("--imu", help="IMU CSV (rates or increments); needs --gnss")
+    ap.add_argument("--gnss", help="GNSS CSV; needs --imu")
     ap.add_argument("--pol", help="polarization CSV (t_us, aop_rad, dop, utc_unix_s), with "
                                   "--imu/--gnss; needs [polarization] in the config")
     ap.add_argument("--recording", metavar="FILE",
@@ -102,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.error("--recording replaces --imu/--gnss")
         return _replay_recording(a)
     if not (a.imu and a.gnss):
-        ap.error("either --imu and --gnss, --recording, or --log is required")
+        ap.error("an input is required: --imu and --gnss (both), --recording, or --log")
     if a.rate is None:
         a.rate = 50.0
     try:

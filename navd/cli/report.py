@@ -9,14 +9,34 @@ import argparse
 import sys
 from pathlib import Path
 
-from navd.eval import report as _report
 from navd.eval.report import build_report
 from navd.eval.tables import ReportError
 
+_DESCRIPTION = """\
+Write an HTML evaluation page (index.html, PNG figures, summary.json) for one replay.
+
+Inputs are what `navd replay` writes: the solution CSV (--out), and optionally the
+onboard attitude of the log (--reference-out, or give the log itself as --reference)
+and the per-epoch aiding file (--aiding-out).
+
+Errors are solution minus reference, wrapped to +-180 deg; "angle" is the whole
+rotation between the two.  The reference is interpolated to each solution time;
+rows outside it or in a reference gap longer than --max-ref-gap-s get no error.
+Statistics: RMS, max and the 50/90/99th percentiles of |error|, overall and per
+segment (--segment-s).
+
+example:
+  navd replay --log flight.ulg --out sol.csv --reference-out ref.csv --aiding-out aid.csv
+  navd report --solution sol.csv --reference ref.csv --aiding aid.csv --out report/
+"""
+
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="navd report", description=_report.__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    # navd.eval.report's docstring is for the code's readers (RST, module names); --help says
+    # what a user gives and gets
+    ap = argparse.ArgumentParser(
+        prog="navd report", formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=_DESCRIPTION)
     ap.add_argument("--solution", required=True, help="solution CSV from navd replay")
     ap.add_argument("--reference", help="reference attitude: CSV from --reference-out, or a "
                                         "log (its onboard estimate)")
