@@ -18,7 +18,9 @@ key, wrong type) raise :class:`ConfigError`.
 The output rule: a solution may be output right after the push of an IMU sample while the
 estimator navigates; a sink at rate ``f`` takes the first such instant at or past each
 multiple of ``1/f`` of the estimator's *sensor* time (:class:`OutputSchedule`), so the output
-sequence is a function of the input alone.
+sequence is a function of the input alone.  When the estimator starts over
+(``Estimator.restarts``: a sensor reboot restarts its clock), every schedule starts over with
+it: outputs after a restart are those of a fresh start on the same input.
 """
 
 from __future__ import annotations
@@ -89,18 +91,26 @@ class OutputSchedule:
 
     Sensor time, not the host clock, decides, so the output sequence is a function of the
     input alone (and a faster-than-real-time stream still gets ``rate_hz`` per sensor second).
+
+    ``epoch`` is the estimator's restart count (``Estimator.restarts``): a new one starts the
+    schedule over, since the restarted sensor clock may begin far before the next multiple
+    of the old one (an autopilot reboot starts again at 0).
     """
 
-    __slots__ = ("_next_us", "period_us")
+    __slots__ = ("_epoch", "_next_us", "period_us")
 
     def __init__(self, rate_hz: float) -> None:
         if not rate_hz > 0.0:
             raise ValueError(f"output rate must be > 0 Hz, got {rate_hz}")
         self.period_us = max(1, round(1e6 / rate_hz))
         self._next_us: int | None = None
+        self._epoch = 0
 
-    def due(self, t_us: int) -> bool:
+    def due(self, t_us: int, epoch: int = 0) -> bool:
         p = self.period_us
+        if epoch != self._epoch:
+            self._epoch = epoch
+            self._next_us = None
         if self._next_us is None:
             self._next_us = -(-t_us // p) * p  # the first multiple at or after t_us
         if t_us < self._next_us:
@@ -120,7 +130,7 @@ def solutions(est: Estimator, samples: Iterable[Sample], rate_hz: float,
     sched = OutputSchedule(rate_hz)
     for s in samples:
         if output_instant(est, s):
-            if sched.due(est.t_us):
+            if sched.due(est.t_us, est.restarts):
                 yield est.solution()
         elif aiding is not None and isinstance(s, GnssSample):
             aiding.after(est, s)

@@ -145,10 +145,17 @@ class Estimator:
 
         self.counters: defaultdict[str, int] = defaultdict(int)
         self.heading_aligned = False
+        # times the state started over (sensor clock jump, restart()): front ends watch it to
+        # restart their output schedules and to report it; the first _reset_state() is the
+        # start, not a restart
+        self.restarts = -1
+        self.restart_reason = ""
         self._reset_state()
 
     # ------------------------------------------------------------------ state
-    def _reset_state(self) -> None:
+    def _reset_state(self, reason: str = "") -> None:
+        self.restarts += 1
+        self.restart_reason = reason
         self._stage = _WAIT
         self.t_us = -1
         self._last_gnss_t_us = -1
@@ -172,7 +179,7 @@ class Estimator:
         """Count ``reason`` and start over (wait for levelling and a fix): for an aid whose
         inputs say the state is wrong beyond repair."""
         self.counters[reason] += 1
-        self._reset_state()
+        self._reset_state(reason)
 
     @property
     def initialized(self) -> bool:
@@ -327,14 +334,14 @@ class Estimator:
                 if self.t_us - s.t_us > 1_000_000:
                     # the sensor clock went back by seconds: a sensor reboot; start over
                     cnt["reinit_time_jump"] += 1
-                    self._reset_state()
+                    self._reset_state("reinit_time_jump")
                 return False
             gap = s.t_us - self.t_us - s.dt_us
             if gap > self.cfg.filter.max_imu_gap * 1e6:
                 cnt["imu_gap"] += 1
                 if gap > 1_000_000:
                     cnt["reinit_time_jump"] += 1
-                    self._reset_state()
+                    self._reset_state("reinit_time_jump")
         self.t_us = s.t_us
         cnt["imu"] += 1
         if self._stage == _WAIT:

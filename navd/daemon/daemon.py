@@ -174,6 +174,12 @@ class Daemon:
         self._progress_at = time.monotonic()
         self._rate_prev: tuple[float, int, int] = (self._t0, 0, 0)
         self.rates_hz = {"imu": 0.0, "gnss": 0.0}
+        # what the last estimator restart was (status "restart"); None: it never restarted
+        self.last_restart: dict[str, Any] | None = None
+        # host times of the last published solution and of the start of navigation: "navigating"
+        # (HEARTBEAT ACTIVE) needs outputs actually going out, not just a navigating estimator
+        self._output_at = -math.inf
+        self._nav_since = -math.inf
 
     # -- life cycle ---------------------------------------------------------------------------
 
@@ -326,20 +332,48 @@ class Daemon:
     async def _estimate(self) -> None:
         est, sinks, get = self.est, self.sinks, self.queue.get
         n = 0
+        restarts = est.restarts
+        navigating = False
         while (item := await get()) is not None:
             recv_ns, s = item
             if self.recorder is not None:
                 self._record(s)
+            t_before = est.t_us
             if output_instant(est, s):  # the one output rule (navd.pipeline)
+                if not navigating:
+                    navigating = True
+                    self._nav_since = time.monotonic()
                 sol: NavSolution | None = None
                 for sink in sinks:
-                    if sink.schedule.due(est.t_us):
+                    # the restart count starts a sink's schedule over with the estimator
+                    if sink.schedule.due(est.t_us, est.restarts):
                         if sol is None:
                             sol = est.solution()
                         self._publish(sink, sol, recv_ns)
+            if est.restarts != restarts:
+                restarts = est.restarts
+                navigating = est.initialized
+                self._restarted(t_before, s.t_us)
             n += 1
             if n % 64 == 0:
                 await asyncio.sleep(0)  # a long backlog must not starve the sockets
+
+    def _restarted(self, t_before_us: int, t_new_us: int) -> None:
+        """The estimator started over: say so at once (the periodic line may be a minute away)
+        and keep it for the status record."""
+        est = self.est
+        reason = est.restart_reason or "restart"
+        self.last_restart = {
+            "count": est.restarts, "reason": reason,
+            "sensor_t_before_s": round(t_before_us * 1e-6, 3),
+            "sensor_t_after_s": round(t_new_us * 1e-6, 3),
+            "uptime_s": round(time.monotonic() - self._t0, 1),
+        }
+        why = (" (the sensor clock jumped: a sensor or autopilot reboot?)"
+               if reason == "reinit_time_jump" else "")
+        self.rlog.warn("restart", "estimator restarted (%s, %d so far): sensor time %.3f s -> "
+                       "%.3f s%s; levelling again, outputs resume when it navigates",
+                       reason, est.restarts, t_before_us * 1e-6, t_new_us * 1e-6, why)
 
     def _record(self, s: Sample) -> None:
         """Append ``s`` to the recording.  A recording is a debugging aid: no sample and no
@@ -374,7 +408,9 @@ class Daemon:
             self.rlog.warn(f"sink_{sink.name}", "%s output failed: %s: %s", sink.name,
                            type(exc).__name__, exc)
             return
-        sink.latency.add(time.monotonic_ns() - recv_ns)
+        now_ns = time.monotonic_ns()
+        sink.latency.add(now_ns - recv_ns)
+        self._output_at = now_ns * 1e-9
 
     # -- periodic tasks -----------------------------------------------------------------------
 
@@ -443,14 +479,26 @@ class Daemon:
         if self.est.t_us < 0:
             return "waiting for IMU"
         stall_s = max(_STALL_S, 2.0 * self.cfg.daemon.status_period)
-        if time.monotonic() - self._progress_at > stall_s:
+        now = time.monotonic()
+        if now - self._progress_at > stall_s:
             return "stalled"
-        return "navigating" if self.est.initialized else "initializing"
+        if not self.est.initialized:
+            return "initializing"
+        if self.sinks and now - max(self._output_at, self._nav_since) > self._output_limit_s():
+            return "navigating, no output"
+        return "navigating"
+
+    def _output_limit_s(self) -> float:
+        """How long navigation may go without a published solution before the state says so:
+        two periods of the slowest sink, at least _STALL_S."""
+        slowest_us = max(s.schedule.period_us for s in self.sinks)
+        return max(_STALL_S, 2.0 * slowest_us * 1e-6)
 
     def _mav_state(self) -> int:
         st = self.state()
         return (MAV_STATE_ACTIVE if st == "navigating" else
-                MAV_STATE_CRITICAL if st == "stalled" else MAV_STATE_STANDBY)
+                MAV_STATE_CRITICAL if st in ("stalled", "navigating, no output") else
+                MAV_STATE_STANDBY)
 
     def status(self) -> dict[str, Any]:
         """Everything an operator needs: the Zenoh status payload and the final stats."""
@@ -468,6 +516,8 @@ class Daemon:
             "sink_errors": self.sink_errors,
             "bias_store": self.bias_store_state,
         }
+        if self.last_restart is not None:
+            out["restart"] = self.last_restart
         if self.recorder is not None:
             out["recording"] = {"path": str(self.recorder.path),
                                 "records": self.recorder.records,
@@ -484,7 +534,11 @@ class Daemon:
         aligned = "heading aligned" if self.est.heading_aligned else "heading not aligned"
         if self.est.heading_held:
             aligned += " (held at rest)"
-        return f"{self.state()}, {aligned}", lat_txt
+        r = self.last_restart
+        restarted = (f", restarted {r['count']}x (last: {r['reason']} at sensor time "
+                     f"{r['sensor_t_before_s']:.1f} -> {r['sensor_t_after_s']:.1f} s)"
+                     if r is not None else "")
+        return f"{self.state()}, {aligned}{restarted}", lat_txt
 
     def status_line(self) -> str:
         head, lat = self._headline()
