@@ -55,7 +55,7 @@ from navd.io.common import Sample
 from navd.io.dronecan import DronecanEncoder
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink
 from navd.io.recording import RecordingError, RecordingWriter
-from navd.io.zenoh import ZenohPublisher
+from navd.io.zenoh import ZenohPublisher, attitude_key, status_key
 from navd.pipeline import build_estimator, output_instant
 from navd.types import GnssSample, ImuSample, NavSolution
 
@@ -212,7 +212,7 @@ class Daemon:
         self.notifier.ready(f"ready; inputs: {', '.join(inputs)}")
         self.ready.set()
         _log.info("ready: inputs %s; outputs %s", ", ".join(inputs) or "none",
-                  ", ".join(s.name for s in self.sinks) or "none")
+                  "; ".join(self.output_destinations()) or "none")
         rc = 0
         try:
             async with asyncio.TaskGroup() as tg:
@@ -248,7 +248,8 @@ class Daemon:
                 key = "zenoh.listen" if c.zenoh.listen else "zenoh.connect"
                 raise StartupError(explain_open_error(
                     key, list(c.zenoh.listen or c.zenoh.connect), exc)) from exc
-            self.zenoh_sink = ZenohSink(session, c.zenoh.attitude_rate)
+            self.zenoh_sink = ZenohSink(session, c.zenoh.attitude_rate,
+                                        c.nav.estimator.init.aligned_sd)
         try:
             inputs = await self.sources.open()
         except InputOpenError as exc:
@@ -285,6 +286,30 @@ class Daemon:
                                    ) from exc
             _log.info("recording pushed samples to %s", self.record_path)
         return inputs
+
+    def output_destinations(self) -> list[str]:
+        """Where each output goes, for the ready line: an operator wiring a consumer needs
+        the address and the key, not only the sink's name."""
+        c = self.cfg
+        out: list[str] = []
+        for sink in self.sinks:
+            hz = 1e6 / sink.schedule.period_us
+            if sink is self.mavlink_sink:
+                dest = (f"the input link {c.mavlink.listen}" if c.mavlink.send == "same"
+                        else c.mavlink.send)
+                out.append(f"mavlink ATTITUDE {hz:g} Hz + HEARTBEAT -> {dest}")
+            elif sink is self.zenoh_sink:
+                ends = ", ".join([*(f"listen {e}" for e in c.zenoh.listen),
+                                  *(f"connect {e}" for e in c.zenoh.connect)]) or "scouting"
+                status = f" + {status_key(c.zenoh.vehicle)}" if c.zenoh.status else ""
+                out.append(f"zenoh {attitude_key(c.zenoh.vehicle)} {hz:g} Hz{status} "
+                           f"({ends})")
+            elif isinstance(sink, DronecanSink):
+                out.append(f"dronecan Solution {hz:g} Hz as node {c.dronecan.node_id} on "
+                           f"{c.dronecan.interface}:{c.dronecan.channel}")
+            else:
+                out.append(f"{sink.name} {hz:g} Hz")
+        return out
 
     def _close(self) -> None:
         for s in self.sinks or [x for x in (self.zenoh_sink,) if x is not None]:
@@ -419,9 +444,11 @@ class Daemon:
         next_log = time.monotonic() + d.log_period
         next_save = time.monotonic() + self.cfg.bias_store.save_period
         seen = dict(self.est.counters)
+        state = self.state()
         while True:
             await asyncio.sleep(d.status_period)
             self._note_progress()
+            state = self._log_state_change(state, self.state())
             if self.zenoh_sink is not None and self.cfg.zenoh.status:
                 self.zenoh_sink.publish_status(self.status())
             self.notifier.status(self.status_line())
@@ -442,6 +469,25 @@ class Daemon:
             if time.monotonic() >= next_log:
                 next_log += d.log_period
                 _log.info("%s", self.log_line())
+
+    def _log_state_change(self, old: str, new: str) -> str:
+        """Say at once when input stops or resumes, or output stops, rather than in the
+        periodic line up to ``log_period_s`` later; return ``new``."""
+        if new == old or new == "stopping":
+            return new
+        t = self.est.t_us * 1e-6
+        if new == "stalled":
+            _log.warning("input stopped: no sensor data for %.1f s (last sensor time %.3f s); "
+                         "no output until it resumes", time.monotonic() - self._progress_at, t)
+        elif old == "stalled":
+            _log.info("input resumed (sensor time %.3f s): %s", t, new)
+        elif new == "navigating, no output":
+            _log.warning("navigating but no solution published for %.1f s (sink errors %d)",
+                         time.monotonic() - max(self._output_at, self._nav_since),
+                         self.sink_errors)
+        elif old == "navigating, no output" and new == "navigating":
+            _log.info("output resumed")
+        return new
 
     async def _watchdog_loop(self, timeout_s: float) -> None:
         loop = asyncio.get_running_loop()
@@ -531,7 +577,7 @@ class Daemon:
         lat = self.sinks[0].latency.summary() if self.sinks else {}
         lat_txt = (f"latency p50/p99 {lat['p50_us'] / 1e3:.2f}/{lat['p99_us'] / 1e3:.2f} ms"
                    if "p99_us" in lat else "no output yet")
-        aligned = "heading aligned" if self.est.heading_aligned else "heading not aligned"
+        aligned = self._heading_words()
         if self.est.heading_held:
             aligned += " (held at rest)"
         r = self.last_restart
@@ -539,6 +585,18 @@ class Daemon:
                      f"{r['sensor_t_before_s']:.1f} -> {r['sensor_t_after_s']:.1f} s)"
                      if r is not None else "")
         return f"{self.state()}, {aligned}{restarted}", lat_txt
+
+    def _heading_words(self) -> str:
+        """The heading's state as the Zenoh ``aligned`` flag has it (navd.io.zenoh): a first
+        course sets the estimator's flag with a wide sigma; aligned means within
+        ``[init] aligned_sd_deg``."""
+        est = self.est
+        if not (est.heading_aligned and est.initialized):
+            return "heading not aligned"
+        sd = est.solution().att_sd_rad[2]
+        if sd <= self.cfg.nav.estimator.init.aligned_sd:
+            return "heading aligned"
+        return f"heading coarse (sigma {math.degrees(sd):.1f} deg, not yet aligned)"
 
     def status_line(self) -> str:
         head, lat = self._headline()

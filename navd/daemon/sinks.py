@@ -9,6 +9,7 @@ CallbackSink   hands solutions to a function (tests, embedding)
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -119,12 +120,14 @@ MAV_STATE_CRITICAL: int = mavlink.MAV_STATE_CRITICAL
 class ZenohSink(Sink):
     name = "zenoh"
 
-    def __init__(self, publisher: ZenohPublisher, rate_hz: float) -> None:
+    def __init__(self, publisher: ZenohPublisher, rate_hz: float,
+                 aligned_sd_rad: float = math.inf) -> None:
         super().__init__(rate_hz)
         self.publisher = publisher
+        self.aligned_sd_rad = aligned_sd_rad  # yaw sigma bound for "aligned": true
 
     def publish(self, sol: NavSolution) -> None:
-        self.publisher.publish_attitude(sol)
+        self.publisher.publish_attitude(sol, self.aligned_sd_rad)
         self.published += 1
 
     def publish_status(self, status: Mapping[str, Any]) -> None:

@@ -87,15 +87,26 @@ def _num(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
-def attitude_payload(sol: NavSolution) -> dict[str, Any]:
+def attitude_payload(sol: NavSolution, aligned_sd_rad: float = math.inf) -> dict[str, Any]:
+    """The attitude object (docs/interfaces.md).
+
+    ``aligned`` is what a consumer acts on, so it says the heading is good, not only that it
+    was started: the estimator's ``heading_aligned`` is set as soon as a first course gives
+    the heading a value, with the wide start-up sigma (``[init] heading_sd_deg``, 10 deg);
+    ``aligned`` also needs the yaw sigma at or below ``aligned_sd_rad`` (the daemon passes
+    ``[init] aligned_sd_deg``, the estimator's own "aligned by observability" bound).
+    ``heading_initialised`` keeps the estimator's flag.
+    """
     d = math.degrees
+    sd_yaw = sol.att_sd_rad[2]
     return {
         "schema": SCHEMA_VERSION,
         "t_us": sol.t_us,
         "quat_wxyz": [_num(v) for v in sol.quat_nb],
         "euler_deg": [_num(d(sol.roll_rad)), _num(d(sol.pitch_rad)), _num(d(sol.yaw_rad))],
         "sigma_deg": [_num(d(v)) for v in sol.att_sd_rad],
-        "aligned": bool(sol.heading_aligned),
+        "aligned": bool(sol.heading_aligned and sd_yaw <= aligned_sd_rad),
+        "heading_initialised": bool(sol.heading_aligned),
     }
 
 
@@ -133,8 +144,8 @@ class ZenohPublisher:
             _close_session(self._session)
             raise
 
-    def publish_attitude(self, sol: NavSolution) -> None:
-        self._put(self._att, attitude_payload(sol), "attitude")
+    def publish_attitude(self, sol: NavSolution, aligned_sd_rad: float = math.inf) -> None:
+        self._put(self._att, attitude_payload(sol, aligned_sd_rad), "attitude")
 
     def publish_status(self, status: Mapping[str, Any]) -> None:
         self._put(self._status, {**status, "schema": SCHEMA_VERSION}, "status")
