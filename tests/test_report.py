@@ -141,3 +141,92 @@ def test_error_stats_and_wrap() -> None:
     assert np.allclose(wrap_deg(np.array([190.0, -190.0, 180.0, 0.0])), [-170, 170, 180, 0])
     s = error_stats(np.array([-3.0, 4.0, math.nan]))
     assert s["n"] == 2 and s["max"] == 4.0 and s["rms"] == pytest.approx(math.sqrt(12.5))
+
+
+def _write_pair(d: Path, t0_us: int, aligned: np.ndarray, yaw_err: np.ndarray) -> tuple[Path,
+                                                                                      Path]:
+    """A solution (roll/pitch exact, yaw off by ``yaw_err``) and its reference, 10 Hz."""
+    n = len(aligned)
+    t = t0_us + np.arange(n, dtype=np.int64) * 100_000
+    sol = d / "sol.csv"
+    with open(sol, "w") as fh:
+        fh.write("t_us,roll_deg,pitch_deg,yaw_deg,lat_deg,lon_deg,roll_sd_deg,pitch_sd_deg,"
+                 "yaw_sd_deg,heading_aligned\n")
+        for k in range(n):
+            sd_yaw = 1.0 if aligned[k] else 90.0
+            fh.write(f"{t[k]},1.0,2.0,{30.0 + yaw_err[k]},47.0,8.0,0.1,0.1,{sd_yaw},"
+                     f"{int(aligned[k])}\n")
+    ref = d / "ref.csv"
+    with open(ref, "w") as fh:
+        fh.write("t_us,roll_deg,pitch_deg,yaw_deg\n")
+        for k in range(n):
+            fh.write(f"{t[k]},1.0,2.0,30.0\n")
+    return sol, ref
+
+
+def test_heading_is_scored_only_where_aligned(tmp_path: Path) -> None:
+    """Issue 16 item 6: an unaligned heading (sigma 90 deg) is not an accuracy claim."""
+    n = 200
+    aligned = np.arange(n) >= 120
+    yaw_err = np.where(aligned, 0.5, 40.0)
+    sol, ref = _write_pair(tmp_path, 5_000_000, aligned, yaw_err)
+    summary = build_report(sol, tmp_path / "r", ref, segment_s=5.0)
+    yaw = summary["stats_deg"]["yaw"]
+    assert yaw["n"] == 80 and yaw["rms"] == pytest.approx(0.5)
+    assert summary["stats_deg"]["roll"]["n"] == n  # roll/pitch on every row
+    assert summary["stats_deg"]["angle"]["n"] == 80
+    assert math.isnan(summary["segments"][0]["rms_deg"]["yaw"])  # 5-10 s: never aligned
+    page = (tmp_path / "r" / "index.html").read_text()
+    assert "scored only where navd&#x27;s heading is aligned" in page
+    assert "80 of 200 rows" in page
+
+    never = tmp_path / "never"
+    never.mkdir()
+    sol, ref = _write_pair(never, 5_000_000, np.zeros(n, bool), np.full(n, 40.0))
+    summary = build_report(sol, never / "r", ref)
+    assert summary["stats_deg"]["yaw"]["n"] == 0 and math.isnan(summary["stats_deg"]["yaw"]["rms"])
+    assert any("never aligned" in x for x in summary["notes"])
+    assert "yaw and angle are not scored" in (never / "r" / "index.html").read_text()
+
+
+def test_wall_clock_stamps_count_from_the_log_start(tmp_path: Path) -> None:
+    """PX4 SITL stamps Unix time: axes, segments and --stats-from-s count from the start."""
+    t0 = 1_710_773_300_250_000  # us, Unix time
+    n = 200
+    sol, ref = _write_pair(tmp_path, t0, np.ones(n, bool), np.full(n, 0.5))
+    summary = build_report(sol, tmp_path / "r", ref, segment_s=5.0, stats_from_s=10.0)
+    assert summary["inputs"]["span"].startswith("0.25 … 20.15 s")
+    assert "from the log's start" in summary["inputs"]["span"]
+    assert [sg["t0_s"] for sg in summary["segments"]] == [10.0, 15.0, 20.0]
+    assert summary["stats_deg"]["yaw"]["n"] == 102  # 10.05 .. 20.15 s
+    assert any("1710773300 s" in x for x in summary["notes"])
+    # a boot-clock log keeps its own time
+    boot = tmp_path / "boot"
+    boot.mkdir()
+    sol, ref = _write_pair(boot, 5_000_000, np.ones(n, bool), np.full(n, 0.5))
+    summary = build_report(sol, boot / "r", ref)
+    assert summary["inputs"]["span"].startswith("5.00 … 24.90 s")
+
+
+def test_wall_clock_figure_axis_has_no_offset(tmp_path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    seen: list[str] = []
+    real_save = plt.Figure.savefig
+
+    def spy(fig: object, *a: object, **k: object) -> None:
+        for ax in fig.axes:  # type: ignore[attr-defined]
+            ax.figure.canvas.draw()
+            seen.append(ax.xaxis.get_major_formatter().get_offset())
+        real_save(fig, *a, **k)  # type: ignore[arg-type]
+
+    sol, ref = _write_pair(tmp_path, 1_710_773_300_250_000, np.ones(200, bool),
+                           np.full(200, 0.5))
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(plt.Figure, "savefig", spy)
+        build_report(sol, tmp_path / "r", ref)
+    assert seen
+    assert all(not o for o in seen), seen

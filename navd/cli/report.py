@@ -23,7 +23,10 @@ Errors are solution minus reference, wrapped to +-180 deg; "angle" is the whole
 rotation between the two.  The reference is interpolated to each solution time;
 rows outside it or in a reference gap longer than --max-ref-gap-s get no error.
 Statistics: RMS, max and the 50/90/99th percentiles of |error|, overall and per
-segment (--segment-s).
+segment (--segment-s).  Heading (yaw and angle) is scored only on rows where navd's
+heading is aligned (heading_aligned = 1); roll and pitch on every row.  Times are
+seconds of the log's clock, or from the log's start where the log stamps wall-clock
+time (PX4 SITL); --stats-from-s uses the same axis.
 
 example:
   navd replay --log flight.ulg --out sol.csv --reference-out ref.csv --aiding-out aid.csv

@@ -159,6 +159,19 @@ class Segment:
     course_rejected: int = 0
 
 
+# Time stamps at or past this (~11.6 days) cannot be time since an autopilot's boot: they are
+# wall-clock stamps (PX4 SITL logs Unix time), shown from the log's start instead.
+WALL_CLOCK_US = 1e12
+
+
+def time_origin_us(*t_us: F64) -> float:
+    """The time the report's axes count from: 0 for a boot clock (already time from the
+    log's start), else the earliest stamp of the inputs, floored to a whole second."""
+    firsts = [float(np.min(t)) for t in t_us if len(t)]
+    first = min(firsts) if firsts else 0.0
+    return 0.0 if first < WALL_CLOCK_US else math.floor(first * 1e-6) * 1e6
+
+
 @dataclass
 class Evaluation:
     t_s: F64
@@ -169,21 +182,37 @@ class Evaluation:
     angle_deg: F64 | None
     stats: dict[str, dict[str, float]] = field(default_factory=dict)
     segments: list[Segment] = field(default_factory=list)
+    t0_us: float = 0.0  # t_s = (t_us - t0_us) * 1e-6 (time_origin_us)
+    # rows whose heading is scored (navd's heading_aligned); None: the column is absent
+    heading_scored: npt.NDArray[np.bool_] | None = None
 
 
 def evaluate(sol: dict[str, Any], ref: RefSeries | None, aid: dict[str, Any] | None,
-             segment_s: float, stats_from_s: float | None, max_gap_s: float) -> Evaluation:
+             segment_s: float, stats_from_s: float | None, max_gap_s: float,
+             t0_us: float = 0.0) -> Evaluation:
+    """Errors and statistics.  Times (``t_s``, ``stats_from_s``, segments) count from
+    ``t0_us``.  Heading (yaw and the total angle) is scored only on rows where navd says its
+    heading is aligned (``heading_aligned`` = 1): before that the yaw is a placeholder with a
+    wide sigma, and scoring it would report an accuracy navd never claimed."""
     t_us = sol["t_us"]
-    t_s = t_us * 1e-6
+    t_s = (t_us - t0_us) * 1e-6
     e_sol = np.stack([sol["roll_deg"], sol["pitch_deg"], sol["yaw_deg"]], 1)
     sd = np.stack([sol["roll_sd_deg"], sol["pitch_sd_deg"], sol["yaw_sd_deg"]], 1)
-    ev = Evaluation(t_s, e_sol, sd, None, None, None)
+    ev = Evaluation(t_s, e_sol, sd, None, None, None, t0_us=t0_us)
+    if "heading_aligned" in sol:
+        ev.heading_scored = np.asarray(sol["heading_aligned"] > 0.5)
     if ref is None or len(t_s) == 0:
         return ev
     e_ref, q_ref = interpolate_reference(ref, t_us, max_gap_s)
     err = wrap_deg(e_sol - e_ref)
     ang = rotation_angle(euler_to_quat(e_sol * D2R), q_ref) * R2D
     ev.ref_deg, ev.err_deg, ev.angle_deg = e_ref, err, ang
+    # the scored copies: heading errors only where aligned (the figures show all of it)
+    err = err.copy()
+    ang = ang.copy()
+    if ev.heading_scored is not None:
+        err[~ev.heading_scored, 2] = np.nan
+        ang[~ev.heading_scored] = np.nan
     start = t_s[0] if stats_from_s is None else max(float(t_s[0]), stats_from_s)
     use = t_s >= start
     for i, a in enumerate(AXES):
@@ -191,7 +220,7 @@ def evaluate(sol: dict[str, Any], ref: RefSeries | None, aid: dict[str, Any] | N
     ev.stats["angle"] = error_stats(ang[use])
     if segment_s > 0 and start <= t_s[-1]:
         n_seg = max(1, math.ceil((t_s[-1] - start) / segment_s))
-        a_t = aid["t_us"] * 1e-6 if aid is not None else np.zeros(0)
+        a_t = (aid["t_us"] - t0_us) * 1e-6 if aid is not None else np.zeros(0)
         a_c = aid.get("course", []) if aid is not None else []
         for k in range(n_seg):
             t0, t1 = start + k * segment_s, start + (k + 1) * segment_s

@@ -75,6 +75,10 @@ def make_figures(ev: Evaluation, sol: dict[str, Any], aid: dict[str, Any] | None
     figs: list[tuple[str, str]] = []
     s = _stride(len(ev.t_s))
     t = ev.t_s[::s]
+    # wall-clock logs (PX4 SITL: Unix time) count from their start, else matplotlib shows an
+    # offset like "+1.7107733e9" and ticks no one can read
+    xlabel = ("time [s]" if ev.t0_us == 0.0 else
+              f"time from the log's start [s] (log clock {ev.t0_us * 1e-6:.0f} s)")
     steps: list[Callable[[], tuple[str, str] | None]] = []
 
     def save(fig: Any, name: str, caption: str, left: float = 0.08) -> tuple[str, str]:
@@ -97,8 +101,14 @@ def make_figures(ev: Evaluation, sol: dict[str, Any], aid: dict[str, Any] | None
             ax.set_ylabel(f"{a} [deg]")
             ax.grid(alpha=0.3)
         axs[0].legend(loc="upper right")
-        axs[-1].set_xlabel("time [s]")
+        axs[-1].set_xlabel(xlabel)
         return save(fig, "attitude.png", "Attitude: navd and the reference")
+
+    hs = ev.heading_scored[::s] if ev.heading_scored is not None else None
+
+    def _scored(y: F64, axis: int) -> F64:
+        """Heading errors (yaw, angle) where they are scored; roll/pitch everywhere."""
+        return y if hs is None or axis != 2 else np.where(hs, y, np.nan)
 
     def error() -> tuple[str, str] | None:
         if ev.err_deg is None:
@@ -108,20 +118,28 @@ def make_figures(ev: Evaluation, sol: dict[str, Any], aid: dict[str, Any] | None
             ax = axs[i]
             band = 3.0 * ev.sd_deg[::s, i]
             ax.fill_between(t, -band, band, color="0.85", label="±3σ (filter)")
-            ax.plot(t, ev.err_deg[::s, i], lw=0.8, color="C3", label="navd − reference")
+            ax.plot(t, _scored(ev.err_deg[::s, i], i), lw=0.8, color="C3",
+                    label="navd − reference")
+            if i == 2 and hs is not None and not hs.all():
+                ax.plot(t, np.where(hs, np.nan, ev.err_deg[::s, i]), lw=0.8, color="0.6",
+                        label="heading not aligned: not scored")
             lim = np.nanpercentile(np.abs(ev.err_deg[:, i]), 99.5) if np.any(
                 np.isfinite(ev.err_deg[:, i])) else 1.0
             ax.set_ylim(-1.5 * max(lim, 0.1), 1.5 * max(lim, 0.1))
             ax.set_ylabel(f"{a} error [deg]")
             ax.grid(alpha=0.3)
         axs[0].legend(loc="upper right")
+        axs[2].legend(loc="upper right", fontsize=8)
         assert ev.angle_deg is not None
-        axs[3].plot(t, ev.angle_deg[::s], lw=0.8, color="C4")
+        axs[3].plot(t, _scored(ev.angle_deg[::s], 2), lw=0.8, color="C4")
+        if hs is not None and not hs.all():
+            axs[3].plot(t, np.where(hs, np.nan, ev.angle_deg[::s]), lw=0.8, color="0.6")
         axs[3].set_ylabel("angle error [deg]")
         axs[3].grid(alpha=0.3)
-        axs[-1].set_xlabel("time [s]")
+        axs[-1].set_xlabel(xlabel)
         return save(fig, "error.png", "Attitude error (navd − reference) with the filter's ±3σ; "
-                                      "bottom: total rotation angle between the two")
+                                      "bottom: total rotation angle between the two; grey: "
+                                      "heading not yet aligned (not scored)")
 
     def heading() -> tuple[str, str] | None:
         fig, ax = plt.subplots(1, 1, figsize=(11, 4.5))
@@ -129,7 +147,7 @@ def make_figures(ev: Evaluation, sol: dict[str, Any], aid: dict[str, Any] | None
         if ev.ref_deg is not None:
             ax.plot(*_break_t(t, ev.ref_deg[::s, 2]), lw=0.9, alpha=0.8, label="reference yaw")
         if aid is not None and len(aid["t_us"]):
-            at = aid["t_us"] * 1e-6
+            at = (aid["t_us"] - ev.t0_us) * 1e-6
             fast = aid["speed_mps"] >= 3.0
             ax.plot(at[fast], aid["course_deg"][fast], ".", ms=2.5, color="k",
                     label="GNSS course (speed ≥ 3 m/s)")
@@ -142,7 +160,7 @@ def make_figures(ev: Evaluation, sol: dict[str, Any], aid: dict[str, Any] | None
         ax.set_ylim(-180, 180)
         ax.set_yticks(range(-180, 181, 60))
         ax.set_ylabel("yaw / course [deg]")
-        ax.set_xlabel("time [s]")
+        ax.set_xlabel(xlabel)
         ax.grid(alpha=0.3)
         ax.legend(loc="upper right", fontsize=8)
         return save(fig, "heading.png", "Heading, GNSS course, and the epochs where the course "
@@ -151,7 +169,7 @@ def make_figures(ev: Evaluation, sol: dict[str, Any], aid: dict[str, Any] | None
     def innovations() -> tuple[str, str] | None:
         if aid is None or not len(aid["t_us"]):
             return None
-        at = aid["t_us"] * 1e-6
+        at = (aid["t_us"] - ev.t0_us) * 1e-6
         fig, axs = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
         for c, lab in zip("ned", ("N", "E", "D"), strict=True):
             axs[0].plot(at, aid[f"innov_pos_{c}_m"], lw=0.8, label=lab)
@@ -164,14 +182,14 @@ def make_figures(ev: Evaluation, sol: dict[str, Any], aid: dict[str, Any] | None
         for ax in axs:
             ax.grid(alpha=0.3)
         axs[0].legend(loc="upper right")
-        axs[-1].set_xlabel("time [s]")
+        axs[-1].set_xlabel(xlabel)
         return save(fig, "innovations.png", "GNSS innovations (measurement − prediction before "
                                             "the update) and yaw − course")
 
     def biases() -> tuple[str, str] | None:
         if aid is None or not len(aid["t_us"]):
             return None
-        at = aid["t_us"] * 1e-6
+        at = (aid["t_us"] - ev.t0_us) * 1e-6
         fig, axs = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
         for c in "xyz":
             axs[0].plot(at, aid[f"gyro_bias_{c}_dph"], lw=0.9, label=c)
@@ -181,7 +199,7 @@ def make_figures(ev: Evaluation, sol: dict[str, Any], aid: dict[str, Any] | None
         for ax in axs:
             ax.grid(alpha=0.3)
             ax.legend(loc="upper right")
-        axs[-1].set_xlabel("time [s]")
+        axs[-1].set_xlabel(xlabel)
         return save(fig, "bias.png", "Bias estimates (body FRD)")
 
     def track() -> tuple[str, str] | None:

@@ -18,6 +18,11 @@ with the filter's +-3 sigma; heading with the epochs where the course update was
 or rejected (red); GNSS innovations; bias estimates; the track on a local north/east map.
 Statistics: RMS, max and the 50/90/99th percentiles of |error| overall, and RMS/max per
 segment (``--segment-s``, 30 s by default); they are also written to ``summary.json``.
+Heading (yaw and the total angle) is scored only where the solution's ``heading_aligned``
+is 1: an unaligned heading is a placeholder with a wide sigma, not a claim.  Time axes
+count from the log's start when its stamps are wall-clock time (PX4 SITL ULogs stamp Unix
+time, which matplotlib would show as an offset like "+1.7107733e9"); otherwise they are
+the log's boot clock.
 """
 
 from __future__ import annotations
@@ -31,7 +36,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from navd.eval.evaluate import AXES, Evaluation, course_check, evaluate, gyro_consistency
+from navd.eval.evaluate import (
+    AXES,
+    Evaluation,
+    course_check,
+    evaluate,
+    gyro_consistency,
+    time_origin_us,
+)
 from navd.eval.figures import make_figures
 from navd.eval.tables import RefSeries, ReportError, load_reference, read_table
 
@@ -73,6 +85,7 @@ def render_html(ev: Evaluation, figs: list[tuple[str, str]], title: str,
                          f"<td>{_fmt(st['p99'])}</td><td>{_fmt(st['max'])}</td>"
                          f"<td>{int(st['n'])}</td></tr>")
         parts.append("</table>")
+        parts.append(f"<p>{e(_heading_note(ev))}.</p>")
     if ev.segments:
         parts.append("<h2>Per segment (RMS / max, deg)</h2><table><tr><th>from [s]</th>"
                      "<th>to [s]</th>" + "".join(f"<th>{a}</th>" for a in (*AXES, "angle"))
@@ -132,7 +145,8 @@ def _checks(ev: Evaluation, sol: dict[str, Any], ref: RefSeries | None,
     """Consistency of navd and of the reference with the gyros and with the GNSS course."""
     if not len(ev.t_s):
         return {}
-    t_from = float(ev.t_s[0]) if stats_from_s is None else stats_from_s
+    # ``stats_from_s`` here is on the log's own clock, as the sensor time stamps are
+    t_from = float(sol["t_us"][0]) * 1e-6 if stats_from_s is None else stats_from_s
     series = {"navd": RefSeries(sol["t_us"], ev.sol_deg, "navd")}
     if ref is not None:
         series["reference"] = ref
@@ -146,6 +160,20 @@ def _checks(ev: Evaluation, sol: dict[str, Any], ref: RefSeries | None,
         if c:
             out[name] = c
     return out
+
+
+def _heading_note(ev: Evaluation) -> str:
+    """What the yaw and angle rows score, said on the page."""
+    hs = ev.heading_scored
+    if hs is None:
+        return ("the solution has no heading_aligned column: heading is scored on every row, "
+                "aligned or not")
+    n, k = len(hs), int(np.count_nonzero(hs))
+    if k == 0:
+        return (f"navd's heading was never aligned (heading_aligned = 0 on all {n} rows): yaw "
+                "and angle are not scored")
+    return (f"heading (yaw and angle) is scored only where navd's heading is aligned "
+            f"(heading_aligned = 1): {k} of {n} rows; roll and pitch on every row")
 
 
 SOL_NEEDED = ("t_us", "roll_deg", "pitch_deg", "yaw_deg", "lat_deg", "lon_deg",
@@ -184,12 +212,19 @@ def build_report(solution: str | Path, out: str | Path, reference: str | Path | 
     if aiding is not None:
         aid = read_table(aiding, ("t_us", "course", "speed_mps", "course_deg"),
                          text=("course_status", "course"), progress=progress)
-    ev = evaluate(sol, ref, aid, segment_s, stats_from_s, max_ref_gap_s)
+    t0_us = time_origin_us(sol["t_us"], *([ref.t_us] if ref is not None else []),
+                           *([aid["t_us"]] if aid is not None else []))
+    ev = evaluate(sol, ref, aid, segment_s, stats_from_s, max_ref_gap_s, t0_us)
+    if t0_us:
+        notes.append(f"times are seconds from the log's start; the log's clock reads "
+                     f"{t0_us * 1e-6:.0f} s there (a wall-clock time stamp)")
+    notes.append(_heading_note(ev))
     if ev.err_deg is not None and not np.any(np.isfinite(ev.err_deg)):
         notes.append("the reference does not overlap the solution in time")
     if stats_from_s is not None:
         notes.append(f"statistics and segments from t = {stats_from_s:g} s on")
-    checks = _checks(ev, sol, ref, aid, log_data, stats_from_s)
+    checks = _checks(ev, sol, ref, aid, log_data,
+                     None if stats_from_s is None else stats_from_s + t0_us * 1e-6)
     figs = make_figures(ev, sol, aid, out_dir, progress)
     inputs = {"solution": str(solution)}
     if ref is not None:
@@ -198,6 +233,8 @@ def build_report(solution: str | Path, out: str | Path, reference: str | Path | 
         inputs["aiding"] = str(aiding)
     if len(ev.t_s):
         inputs["span"] = f"{ev.t_s[0]:.2f} … {ev.t_s[-1]:.2f} s, {len(ev.t_s)} rows"
+        if t0_us:
+            inputs["span"] += " (from the log's start)"
     if log is not None:
         inputs["log"] = str(log)
     page = render_html(ev, figs, title or f"navd report: {Path(solution).name}", inputs, aid,
