@@ -111,6 +111,14 @@ def course_sd(speed_sd_mps: float, speed_h_mps: float) -> float:
     return speed_sd_mps / speed_h_mps
 
 
+# sideslip gain: prior sigma (rad per m/s^2; cars slip up to a few deg per m/s^2), the
+# smallest lateral acceleration that teaches it, and a random walk per update so that a
+# changed load or tyre is followed
+_SLIP_SD0 = math.radians(3.0)
+_SLIP_MIN_ALAT = 0.5
+_SLIP_Q = math.radians(0.001) ** 2
+
+
 class CourseHeading:
     """GNSS course as heading, joined to the GNSS velocity update (part of the GNSS aid).
 
@@ -136,9 +144,16 @@ class CourseHeading:
         self.status = "off"
         self.last_used_t_us = -1
         self.rejects = 0
+        # sideslip per lateral acceleration (rad per m/s^2) and its variance: course =
+        # heading + slip_gain * a_lat for a car whose tyres slip in turns (see _learn_slip)
+        self.slip_gain = 0.0
+        self.slip_var = _SLIP_SD0 * _SLIP_SD0
+        self._a_lat = 0.0
 
     def reset(self) -> None:
         self.rejects = 0
+        self.slip_gain = 0.0
+        self.slip_var = _SLIP_SD0 * _SLIP_SD0
 
     def usable(self, est: Estimator, g: GnssSample) -> bool:
         """Whether heading ~ course now (docs/design.md §4); sets :attr:`status`."""
@@ -162,6 +177,7 @@ class CourseHeading:
         if abs(yaw_rate) * speed > c.heading.max_lat_accel:
             self.status = "waiting: lateral acceleration too high"
             return False
+        self._a_lat = yaw_rate * speed  # centripetal, positive to the right
         # Backwards motion in body x is reversing only at reversing speeds; faster than that
         # it means our yaw is off by more than 90 degrees, which the course must correct.
         vx = m[0, 0] * g.vel_n + m[1, 0] * g.vel_e + m[2, 0] * g.vel_d
@@ -220,16 +236,23 @@ class CourseHeading:
                 est.state_restore()
             self.align_yaw(est, vn_c, ve_c, s_sd)
             return
+        # the course of the body x axis: the GNSS course minus the learned sideslip
+        a_lat = self._a_lat
+        d = self.slip_gain * a_lat
+        cd, sd_ = math.cos(d), math.sin(d)
+        vn_c, ve_c = cd * vn_c + sd_ * ve_c, -sd_ * vn_c + cd * ve_c
+        sd_beta = math.sqrt(self.sd_beta * self.sd_beta + a_lat * a_lat * self.slip_var)
         # course alone first: its own gate decides whether it joins the velocity update
-        st.course_row(est.buf, 3, vn_c, ve_c, s_sd, self.sd_beta)
+        st.course_row(est.buf, 3, vn_c, ve_c, s_sd, sd_beta)
         if swapped:
             est.state_restore()
         zc = z[3]
         sc = H[3, 0] * H[3, 0] * P[0, 0] + H[3, 1] * H[3, 1] * P[1, 1]
         sc += 2.0 * H[3, 0] * H[3, 1] * P[0, 1] + P[2, 2]
         sc -= 2.0 * (H[3, 0] * P[0, 2] + H[3, 1] * P[1, 2])
-        sc += s_sd * s_sd / (vn_c * vn_c + ve_c * ve_c) + self.sd_beta**2
+        sc += s_sd * s_sd / (vn_c * vn_c + ve_c * ve_c) + sd_beta * sd_beta
         course_ok = (not self._gating) or zc * zc / sc <= self._gate1
+        self._learn_slip(zc, sc, a_lat)
         rec = est.innov[INNOV_COURSE]
         rec[0] = zc
         rec[INNOV_NIS] = zc * zc / sc
@@ -254,6 +277,28 @@ class CourseHeading:
             # persistently inconsistent: the yaw is wrong beyond the linear model; reset it
             self.align_yaw(est, vn_c, ve_c, s_sd)
             cnt["heading_reset"] += 1
+
+    def _learn_slip(self, zc: float, sc: float, a_lat: float) -> None:
+        """One scalar Kalman step for the sideslip gain from this course innovation.
+
+        With course chi = psi + k a_lat, the innovation of the slip-corrected course is
+        zc = psi_hat - chi + k_hat a_lat = (psi_hat - psi) - (k - k_hat) a_lat, so
+        -zc observes (k - k_hat) a_lat with the rest of the innovation variance as noise.
+        A heading error is common to left and right turns while the slip changes sign with
+        a_lat, so turns both ways separate the two.  Only turns teach anything: below
+        0.5 m/s^2 the epoch is skipped.
+        """
+        if abs(a_lat) < _SLIP_MIN_ALAT or not math.isfinite(zc):
+            return
+        h = a_lat
+        pk = self.slip_var
+        r = max(sc - h * h * pk, 1e-12)  # the innovation variance without the gain's part
+        s = h * h * pk + r
+        if zc * zc > self._gate1 * s:
+            return  # an outlier teaches nothing
+        gain = pk * h / s
+        self.slip_gain += gain * (-zc)
+        self.slip_var = (1.0 - gain * h) * pk + _SLIP_Q
 
     def note_not_tried(self, est: Estimator, g: GnssSample) -> None:
         """Course record before the epoch's updates: not tried, with wrap(psi_hat - chi) of
