@@ -80,6 +80,9 @@ class GnssAiding:
     def status(self, est: Estimator) -> dict[str, object]:
         return {
             "course_update": self.course.status,
+            # learned sideslip per lateral acceleration and its 1-sigma (ground profile)
+            "sideslip_deg_per_mps2": [round(math.degrees(self.course.slip_gain), 3),
+                                      round(math.degrees(self.course.slip_sd), 3)],
             # at rest with a MEMS gyro: GNSS fixes leave the heading alone (its sigma grows)
             "heading_held": self.hold >= 0,
             # how long position / velocity updates have been refused (s; reset to GNSS

@@ -144,16 +144,27 @@ class CourseHeading:
         self.status = "off"
         self.last_used_t_us = -1
         self.rejects = 0
-        # sideslip per lateral acceleration (rad per m/s^2) and its variance: course =
-        # heading + slip_gain * a_lat for a car whose tyres slip in turns (see _learn_slip)
-        self.slip_gain = 0.0
-        self.slip_var = _SLIP_SD0 * _SLIP_SD0
-        self._a_lat = 0.0
+        # [sideslip per lateral acceleration (rad per m/s^2), its variance, the last usable
+        # epoch's lateral acceleration (m/s^2)]: course = heading + gain * a_lat for a car
+        # whose tyres slip in turns (see _learn_slip).  An array, not float attributes: the
+        # epoch loop rebinds no Python objects (the allocation test counts them).
+        self._slip = np.array([0.0, _SLIP_SD0 * _SLIP_SD0, 0.0])
+
+    @property
+    def slip_gain(self) -> float:
+        """Learned sideslip per lateral acceleration, rad per m/s^2."""
+        return float(self._slip[0])
+
+    @property
+    def slip_sd(self) -> float:
+        """Its 1-sigma, rad per m/s^2."""
+        return math.sqrt(float(self._slip[1]))
 
     def reset(self) -> None:
         self.rejects = 0
-        self.slip_gain = 0.0
-        self.slip_var = _SLIP_SD0 * _SLIP_SD0
+        self._slip[0] = 0.0
+        self._slip[1] = _SLIP_SD0 * _SLIP_SD0
+        self._slip[2] = 0.0
 
     def usable(self, est: Estimator, g: GnssSample) -> bool:
         """Whether heading ~ course now (docs/design.md §4); sets :attr:`status`."""
@@ -177,7 +188,7 @@ class CourseHeading:
         if abs(yaw_rate) * speed > c.heading.max_lat_accel:
             self.status = "waiting: lateral acceleration too high"
             return False
-        self._a_lat = yaw_rate * speed  # centripetal, positive to the right
+        self._slip[2] = yaw_rate * speed  # centripetal, positive to the right
         # Backwards motion in body x is reversing only at reversing speeds; faster than that
         # it means our yaw is off by more than 90 degrees, which the course must correct.
         vx = m[0, 0] * g.vel_n + m[1, 0] * g.vel_e + m[2, 0] * g.vel_d
@@ -237,11 +248,11 @@ class CourseHeading:
             self.align_yaw(est, vn_c, ve_c, s_sd)
             return
         # the course of the body x axis: the GNSS course minus the learned sideslip
-        a_lat = self._a_lat
-        d = self.slip_gain * a_lat
+        a_lat = float(self._slip[2])
+        d = float(self._slip[0]) * a_lat
         cd, sd_ = math.cos(d), math.sin(d)
         vn_c, ve_c = cd * vn_c + sd_ * ve_c, -sd_ * vn_c + cd * ve_c
-        sd_beta = math.sqrt(self.sd_beta * self.sd_beta + a_lat * a_lat * self.slip_var)
+        sd_beta = math.sqrt(self.sd_beta * self.sd_beta + a_lat * a_lat * float(self._slip[1]))
         # course alone first: its own gate decides whether it joins the velocity update
         st.course_row(est.buf, 3, vn_c, ve_c, s_sd, sd_beta)
         if swapped:
@@ -291,14 +302,14 @@ class CourseHeading:
         if abs(a_lat) < _SLIP_MIN_ALAT or not math.isfinite(zc):
             return
         h = a_lat
-        pk = self.slip_var
+        pk = float(self._slip[1])
         r = max(sc - h * h * pk, 1e-12)  # the innovation variance without the gain's part
         s = h * h * pk + r
         if zc * zc > self._gate1 * s:
             return  # an outlier teaches nothing
         gain = pk * h / s
-        self.slip_gain += gain * (-zc)
-        self.slip_var = (1.0 - gain * h) * pk + _SLIP_Q
+        self._slip[0] -= gain * zc
+        self._slip[1] = (1.0 - gain * h) * pk + _SLIP_Q
 
     def note_not_tried(self, est: Estimator, g: GnssSample) -> None:
         """Course record before the epoch's updates: not tried, with wrap(psi_hat - chi) of
