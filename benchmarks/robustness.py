@@ -27,8 +27,9 @@ Per case (pooled over seeds; instants every 0.1 s of sensor time after navigatio
   seeds.
 * ``target``: the issue-14 target that applies, and ``ok``/``MISS``.
 
-Real logs (``/work/shared/data``): roll/pitch RMS against the log's onboard attitude (ATT,
-magnetometer-aided: an estimate, not truth) over the in-flight instants, % of instants with
+Real logs (``../shared/data`` beside the checkout, or ``$NAVD_DATA``): roll/pitch RMS
+against the log's onboard attitude (ATT, magnetometer-aided: an estimate, not truth) over
+the in-flight instants, % of instants with
 |navd - ATT| > 3 navd-sigma, lock-outs and resets as above.  A log that cannot be read, or
 gives no navigation solution, prints its reason instead of numbers.
 
@@ -42,6 +43,7 @@ import argparse
 import json
 import math
 import multiprocessing
+import os
 import time
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -64,7 +66,9 @@ Sample = ImuSample | GnssSample | PolSample
 
 DPH = DEG / 3600.0   # deg/h in rad/s
 MG = 9.80665e-3      # mg in m/s^2
-DATA = Path("/work/shared/data")
+# the recorded flights (each folder with its README); NAVD_DATA points elsewhere
+DATA = Path(os.environ.get("NAVD_DATA",
+                           Path(__file__).resolve().parents[2] / "shared" / "data"))
 
 # per-epoch outcome of one GNSS update kind
 NOT_TRIED, ACCEPTED, REJECTED = 0, 1, 2
