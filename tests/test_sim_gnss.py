@@ -29,6 +29,10 @@ def _truth_at(run: SimRun) -> tuple[Arr, Arr]:
 
 
 def test_epochs_and_accuracy_fields(car: SimRun) -> None:
+    """GIVEN the car480 scenario (480 s, 10 Hz GNSS, no jumps, no latency),
+    WHEN its GNSS table is generated,
+    THEN it has 4800 epochs 100 ms apart with int64 times, no outliers, arrival equal to
+    validity time, and the reported accuracies are 10 m horizontal and 0.1 m/s velocity."""
     g = car.gnss
     assert g["t_us"].dtype == np.int64
     assert g["outlier"].dtype == np.bool_
@@ -41,6 +45,10 @@ def test_epochs_and_accuracy_fields(car: SimRun) -> None:
 
 
 def test_noise_levels(car: SimRun) -> None:
+    """GIVEN the car480 GNSS fixes and the truth at the same instants,
+    WHEN the fix errors are taken per axis,
+    THEN velocity noise has a std of 0.1 m/s (5 %) and north/east/down position noise a std
+    of 10 m (5 %) with a mean under 0.6 m."""
     pos, vel = _truth_at(car)
     g = car.gnss
     dv = np.stack([g["vel_n"], g["vel_e"], g["vel_d"]], axis=1) - vel
@@ -55,6 +63,10 @@ def test_noise_levels(car: SimRun) -> None:
 
 
 def test_course_noise_matches_sigma_over_speed(car: SimRun) -> None:
+    """GIVEN the car480 GNSS velocities and the true velocities,
+    WHEN the course-over-ground error is taken wherever the speed exceeds 5 m/s,
+    THEN the error scaled by speed / velocity sigma has unit std (10 %), and on the 20 m/s
+    straight from 75 to 145 s its std is 0.1/20 rad (15 %)."""
     _, vel = _truth_at(car)
     g = car.gnss
     vh = np.hypot(vel[:, 0], vel[:, 1])
@@ -88,6 +100,11 @@ def _runs(flag: npt.NDArray[np.bool_]) -> list[tuple[int, int]]:
 
 
 def test_velocity_jump_bursts() -> None:
+    """GIVEN car480 with velocity jumps enabled and the white velocity noise switched off,
+    WHEN the GNSS table is generated,
+    THEN there are exactly 6 flagged bursts of 3 to 8 epochs between 60 and 470 s, each with a
+    3-5 m/s velocity error in random directions, unflagged epochs are exact, and with jumps
+    at their default (off) no epoch is flagged."""
     sc = load_scenario("car480", overrides={"gnss.jumps.enabled": True,
                                             "gnss.vel_sigma_h_mps": 0.0,
                                             "gnss.vel_sigma_v_mps": 0.0})
@@ -114,6 +131,10 @@ def test_velocity_jump_bursts() -> None:
 
 
 def test_jumps_with_noise_keep_the_flag_column() -> None:
+    """GIVEN car480 with velocity jumps enabled and the normal velocity noise left on,
+    WHEN the GNSS table is generated,
+    THEN at least 18 epochs are flagged as outliers, every flagged epoch errs by more than
+    2.4 m/s and every unflagged one by less than 0.8 m/s."""
     run = generate(load_scenario("car480", overrides={"gnss.jumps.enabled": True}), seed=9)
     _, vel = _truth_at(run)
     g = run.gnss
@@ -124,6 +145,10 @@ def test_jumps_with_noise_keep_the_flag_column() -> None:
 
 
 def test_dropouts() -> None:
+    """GIVEN the drive_long scenario (5 Hz GNSS) with dropouts at 650-680 s and 900-905 s,
+    WHEN its GNSS table is generated,
+    THEN no fix falls inside either window and the only gaps longer than 200 ms are
+    5.2 s and 30.2 s."""
     run = generate(load_scenario("drive_long"), seed=1)
     t = run.gnss["t_us"] * 1e-6
     assert not np.any((t >= 650.0) & (t < 680.0))
@@ -134,6 +159,10 @@ def test_dropouts() -> None:
 
 
 def test_frames_consistent(car: SimRun) -> None:
+    """GIVEN the car480 GNSS fixes, which carry both geodetic/NED and ECEF columns,
+    WHEN a sample of epochs is converted between the frames,
+    THEN ECEF and NED velocities, geodetic and ECEF positions agree to round-off in both
+    directions, and the vectorised mats_ne matches mat_ne exactly."""
     g = car.gnss
     lat = np.radians(g["lat_deg"])
     lon = np.radians(g["lon_deg"])
@@ -158,6 +187,10 @@ def test_frames_consistent(car: SimRun) -> None:
 
 
 def test_gnss_samples_and_merge_order() -> None:
+    """GIVEN a 5 s car480 run (10 Hz GNSS, 100 Hz IMU),
+    WHEN it is read as GnssSample, ImuSample and merged sample streams,
+    THEN there are 50 fixes and 500 IMU samples with fields copied from the tables, and in the
+    merged stream of 550 each fix comes right after the IMU sample of the same time."""
     run = generate(load_scenario("car480", overrides={"duration_s": 5.0}), seed=1)
     gs = list(run.gnss_samples())
     assert len(gs) == 50
@@ -184,6 +217,10 @@ def test_gnss_samples_and_merge_order() -> None:
 
 
 def test_latency_delays_arrival_only() -> None:
+    """GIVEN a 5 s car480 run with 0.25 s GNSS latency,
+    WHEN the GNSS table and the merged sample stream are produced,
+    THEN arrival times are validity + 250 ms while validity times are unchanged, and each fix
+    is delivered after the IMU sample at its arrival time (or after the last IMU sample)."""
     run = generate(load_scenario("car480", overrides={"duration_s": 5.0,
                                                       "gnss.latency_s": 0.25}), seed=1)
     g = run.gnss
@@ -205,6 +242,10 @@ def test_latency_delays_arrival_only() -> None:
 
 
 def test_gauss_markov_position_noise() -> None:
+    """GIVEN a 4000 s static run with a 60 s Gauss-Markov time constant on position noise,
+    WHEN the autocorrelation of the north position error is taken at a 60 s lag,
+    THEN it is exp(-1) (within 0.2), while with the default white noise the lag-one
+    autocorrelation stays under 0.1."""
     sc = load_scenario("static", overrides={"duration_s": 4000.0, "gnss.pos_tau_s": 60.0,
                                             "imu.rate_hz": 10.0})
     run = generate(sc, seed=3)
