@@ -43,6 +43,11 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 
 def test_builtins_load() -> None:
+    """GIVEN the scenarios shipped with firmware_sim,
+    WHEN each is loaded by name,
+    THEN all validate with their own name and a positive duration, car480 is a 480 s ground
+    drive with 100 Hz IMU, 10 Hz GNSS and jumps off, and ship_dov is a ship at 22 N 113 E
+    with modulation and deflection of the vertical on."""
     names = builtin_scenarios()
     assert {"car480", "drive_long", "multirotor", "ship_dov", "static"} <= set(names)
     for n in names:
@@ -62,6 +67,10 @@ def test_builtins_load() -> None:
 
 
 def test_file_and_overrides(tmp_path: Path) -> None:
+    """GIVEN a valid scenario file,
+    WHEN it is loaded with dotted-key overrides, and again by its path as a string,
+    THEN the overrides replace the file's values (an int yaw becomes a float) and the
+    scenario records the path as its source."""
     p = _write(tmp_path, GOOD)
     sc = load_scenario(p, overrides={"gnss.jumps.enabled": True, "duration_s": 5.0,
                                      "trajectory.yaw0_deg": 10})
@@ -72,6 +81,9 @@ def test_file_and_overrides(tmp_path: Path) -> None:
 
 
 def test_missing_field_names_field_and_unit(tmp_path: Path) -> None:
+    """GIVEN a scenario file without imu.arw_rad_per_sqrt_s,
+    WHEN it is loaded,
+    THEN ScenarioError says the field is missing, with its dotted name and unit rad/sqrt(s)."""
     p = _write(tmp_path, GOOD.replace("arw_rad_per_sqrt_s = 7e-5\n", ""))
     with pytest.raises(ScenarioError) as e:
         load_scenario(p)
@@ -80,6 +92,9 @@ def test_missing_field_names_field_and_unit(tmp_path: Path) -> None:
 
 
 def test_misspelt_field_is_unknown_with_suggestion(tmp_path: Path) -> None:
+    """GIVEN a scenario file with gnss.vel_sigma_h_ms instead of gnss.vel_sigma_h_mps,
+    WHEN it is loaded,
+    THEN ScenarioError calls it an unknown field and suggests the right name and its unit m/s."""
     p = _write(tmp_path, GOOD.replace("vel_sigma_h_mps", "vel_sigma_h_ms"))
     with pytest.raises(ScenarioError) as e:
         load_scenario(p)
@@ -89,6 +104,10 @@ def test_misspelt_field_is_unknown_with_suggestion(tmp_path: Path) -> None:
 
 
 def test_wrong_type_names_field_and_unit(tmp_path: Path) -> None:
+    """GIVEN a scenario with a string IMU rate, a boolean speed target, or a string override
+    for a boolean flag,
+    WHEN it is loaded,
+    THEN ScenarioError names the field and the expected type (with the unit where it has one)."""
     p = _write(tmp_path, GOOD.replace("rate_hz = 100.0", 'rate_hz = "fast"'))
     with pytest.raises(ScenarioError, match=r"imu\.rate_hz: expected a number in Hz"):
         load_scenario(p)
@@ -117,11 +136,18 @@ def test_wrong_type_names_field_and_unit(tmp_path: Path) -> None:
     ({"imu.rate_hz.x": 1}, r"imu\.rate_hz: is not a table"),
 ])
 def test_bad_values(tmp_path: Path, override: dict[str, object], pattern: str) -> None:
+    """GIVEN a valid scenario file and one bad override (inexact rate, unknown or misspelt key,
+    bad enum, negative or out-of-range value, unordered or incomplete speed events),
+    WHEN it is loaded,
+    THEN ScenarioError names the offending field and says what is wrong with it."""
     with pytest.raises(ScenarioError, match=pattern):
         load_scenario(_write(tmp_path, GOOD), overrides=override)
 
 
 def test_unknown_scenario_and_bad_toml(tmp_path: Path) -> None:
+    """GIVEN an unknown scenario name, a file with invalid TOML, or a path that does not exist,
+    WHEN each is loaded,
+    THEN ScenarioError says so (an unknown name lists the built-ins such as car480)."""
     with pytest.raises(ScenarioError, match=r"unknown scenario 'nope'.*car480"):
         load_scenario("nope")
     with pytest.raises(ScenarioError, match="invalid TOML"):
@@ -131,6 +157,9 @@ def test_unknown_scenario_and_bad_toml(tmp_path: Path) -> None:
 
 
 def test_grade_preset_fills_missing_keys(tmp_path: Path) -> None:
+    """GIVEN a scenario whose IMU gives grade = "nav_seed002" in place of the gyro bias sigma,
+    WHEN it is loaded,
+    THEN the gyro bias comes from the preset while keys set in the file keep their values."""
     text = GOOD.replace("gyro_bias_sigma_rps = 5.8e-5\n", 'grade = "nav_seed002"\n')
     sc = load_scenario(_write(tmp_path, text))
     assert sc.imu.gyro_bias_sigma_rps == pytest.approx(1.454441043328608e-08)
@@ -139,6 +168,9 @@ def test_grade_preset_fills_missing_keys(tmp_path: Path) -> None:
 
 def test_builtin_name_wins_over_a_folder_of_that_name(tmp_path: Path,
                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """GIVEN a working directory holding a folder named car480,
+    WHEN the scenario "car480" is loaded,
+    THEN the built-in scenario is returned."""
     monkeypatch.chdir(tmp_path)
     (tmp_path / "car480").mkdir()          # e.g. a previous --out car480
     assert load_scenario("car480").name == "car480"
