@@ -33,6 +33,10 @@ def _sensor_error(run: SimRun) -> Arr:
 
 
 def test_gyro_offset_at_rest_has_its_stated_size() -> None:
+    """GIVEN a 30 s static run with a fixed gyro offset of (0.3, -1.0, 0.5) deg/s and no drawn bias,
+    WHEN the gyro error (measured minus error-free rate) is averaged,
+    THEN the mean equals the offset (within 6e-5 rad/s) and the recorded gyro bias is exactly
+    the offset."""
     off = np.array([0.3, -1.0, 0.5]) * DEG
     run = generate(load_scenario("static", _static(30.0, **{
         "imu.gyro_offset_rps": off.tolist()})), seed=3)
@@ -43,6 +47,10 @@ def test_gyro_offset_at_rest_has_its_stated_size() -> None:
 
 
 def test_accel_offset_at_rest_has_its_stated_size() -> None:
+    """GIVEN a 30 s static run with a fixed accelerometer offset of (20, -20, 20) mg and no
+    drawn bias,
+    WHEN the accelerometer error is averaged,
+    THEN the mean equals the offset (within 0.2 m/s^2) and the recorded accel bias is the offset."""
     off = np.array([20.0, -20.0, 20.0]) * MG
     run = generate(load_scenario("static", _static(30.0, **{
         "imu.accel_offset_mps2": off.tolist()})), seed=3)
@@ -53,6 +61,10 @@ def test_accel_offset_at_rest_has_its_stated_size() -> None:
 
 
 def test_offsets_leave_every_other_draw_unchanged() -> None:
+    """GIVEN two 20 s car480 runs with the same seed, one with a gyro offset added,
+    WHEN their outputs are compared,
+    THEN the gyro increments differ by exactly offset * dt, while the accelerometer
+    increments and the GNSS latitudes are identical."""
     off = [0.01, 0.02, -0.03]
     a = generate(load_scenario("car480", {"duration_s": 20.0}), seed=5)
     b = generate(load_scenario("car480", {"duration_s": 20.0, "imu.gyro_offset_rps": off}),
@@ -65,6 +77,10 @@ def test_offsets_leave_every_other_draw_unchanged() -> None:
 
 
 def test_bias_random_walk_steps_and_spread() -> None:
+    """GIVEN a 200 s static run with gyro and accel bias random walks and no white noise,
+    WHEN the sensor error and the walks are examined,
+    THEN the gyro error is the walk itself starting at 0, each step has std q * sqrt(dt)
+    (2 %), and the accel walk has wandered by roughly q * sqrt(200 s) by the end."""
     q_g = 10.0 * DEG / 3600.0 / 60.0  # 10 deg/h/sqrt(h) in rad/s/sqrt(s)
     q_a = 1e-3
     run = generate(load_scenario("static", _static(
@@ -97,6 +113,9 @@ def _ne_error_m(run: SimRun) -> Arr:
 
 
 def test_velocity_noise_beyond_reported_accuracy() -> None:
+    """GIVEN a 1500 s static run with gnss.vel_noise_scale = 3,
+    WHEN the horizontal velocity errors of the fixes are taken,
+    THEN the fixes still report 0.05 m/s accuracy but the actual error std is 3 x 0.05 m/s (5 %)."""
     run = generate(load_scenario("static", _static(1500.0, **{"gnss.vel_noise_scale": 3.0})),
                    seed=2)
     g = run.gnss
@@ -107,6 +126,10 @@ def test_velocity_noise_beyond_reported_accuracy() -> None:
 
 
 def test_a_500_m_jump_moves_the_fixes_by_500_m_inside_its_window_only() -> None:
+    """GIVEN a 60 s car480 run with a 500 m north position step from 20 to 40 s,
+    WHEN the north/east errors of the fixes are taken,
+    THEN fixes inside the window are 500 m north on average (3 m) and flagged as outliers,
+    and fixes outside are unshifted and unflagged."""
     run = generate(load_scenario("car480", {
         "duration_s": 60.0,
         "gnss.pos_steps": [{"start_s": 20.0, "end_s": 40.0, "north_m": 500.0}]}), seed=4)
@@ -122,6 +145,9 @@ def test_a_500_m_jump_moves_the_fixes_by_500_m_inside_its_window_only() -> None:
 
 
 def test_outage_leaves_no_fix_in_its_window() -> None:
+    """GIVEN a 120 s car480 run with a GNSS outage from 30 to 90 s,
+    WHEN the GNSS table is generated,
+    THEN no fix falls in the window and all 10 Hz fixes before (299) and after (301) it remain."""
     run = generate(load_scenario("car480", {
         "duration_s": 120.0, "gnss.dropouts": [{"start_s": 30.0, "end_s": 90.0}]}), seed=1)
     t = run.gnss["t_us"] * 1e-6
@@ -137,5 +163,9 @@ def test_outage_leaves_no_fix_in_its_window() -> None:
     ("gnss.pos_steps", [{"start_s": 10.0, "end_s": 5.0, "north_m": 1.0}]),
 ])
 def test_bad_values_are_refused(key: str, value: Any) -> None:
+    """GIVEN a robustness setting with a bad value (wrong-length offset, negative random walk or
+    noise scale, a position step ending before it starts),
+    WHEN car480 is loaded with it,
+    THEN ScenarioError names the setting."""
     with pytest.raises(ScenarioError, match=key.split(".")[1]):
         load_scenario("car480", {key: value})
