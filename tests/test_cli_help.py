@@ -29,6 +29,9 @@ def _help(main: Callable[[list[str]], int], argv: list[str],
 
 
 def test_version(capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN the navd command,
+    WHEN it is run with --version, -V or --help,
+    THEN --version prints "navd <version>", -V also exits 0, and the help lists --version."""
     assert navd_main(["--version"]) == 0
     assert capsys.readouterr().out.strip() == f"navd {navd.__version__}"
     assert navd_main(["-V"]) == 0
@@ -41,6 +44,10 @@ def _description(text: str) -> str:
 
 
 def test_demo_help_is_whole_sentences(capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN the navd demo command,
+    WHEN its --help is printed,
+    THEN the description ends with a full stop (not cut at the docstring's first line), has no
+    reST markup or internal names, and mentions real time and --duration."""
     text = _help(demo.main, ["--help"], capsys)
     desc = " ".join(_description(text).split())
     assert desc.endswith("."), desc          # not cut at the docstring's first line
@@ -49,12 +56,18 @@ def test_demo_help_is_whole_sentences(capsys: pytest.CaptureFixture[str]) -> Non
 
 
 def test_report_help_has_no_rst_or_internal_names(capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN the navd report command,
+    WHEN its --help is printed,
+    THEN it has no reST markup or internal names, and mentions navd replay and --reference-out."""
     text = _help(report.main, ["--help"], capsys)
     assert not _RST.search(text), text
     assert "navd replay" in text and "--reference-out" in text
 
 
 def test_replay_help_says_which_input_is_required(capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN the navd replay command,
+    WHEN its --help is printed,
+    THEN it has no reST markup and says one of --imu/--gnss, --recording or --log is required."""
     text = _help(replay.main, ["--help"], capsys)
     assert not _RST.search(text), text
     flat = " ".join(text.split())
@@ -63,6 +76,10 @@ def test_replay_help_says_which_input_is_required(capsys: pytest.CaptureFixture[
 
 def test_replay_without_input_names_all_three(capsys: pytest.CaptureFixture[str],
                                               tmp_path: Path) -> None:
+    """GIVEN navd replay given only --out,
+    WHEN it runs,
+    THEN it exits with code 2 and the error names all three inputs: --imu and --gnss,
+    --recording, --log."""
     with pytest.raises(SystemExit) as exc:
         replay.main(["--out", str(tmp_path / "s.csv")])
     assert exc.value.code == 2
@@ -71,6 +88,10 @@ def test_replay_without_input_names_all_three(capsys: pytest.CaptureFixture[str]
 
 
 def test_stream_help_has_description_and_defaults(capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN the firmware_sim stream subcommand,
+    WHEN its --help is printed,
+    THEN it has a description mentioning MAVLink, shows the real defaults (address, message
+    names, CAN channel, node ID 42) and never "(default: None)" or "(default: False)"."""
     text = _help(sim_main, ["stream", "--help"], capsys)
     desc = _description(text)
     text = " ".join(text.split())
@@ -82,6 +103,10 @@ def test_stream_help_has_description_and_defaults(capsys: pytest.CaptureFixture[
 
 
 def test_readme_documents_commands() -> None:
+    """GIVEN README.md,
+    WHEN it is read,
+    THEN its first shell block has make run and make test, it says the run is 480 s in real
+    time, and it mentions navd report, --log and navd dov-grid."""
     readme = (ROOT / "README.md").read_text()
     first = readme.split("```sh", 1)[1].split("```", 1)[0]
     assert "make run" in first and "make test" in first
@@ -92,6 +117,9 @@ def test_readme_documents_commands() -> None:
 
 
 def test_replay_format_lists_log_formats() -> None:
+    """GIVEN docs/replay-format.md,
+    WHEN its "## Flight logs" section is read,
+    THEN it names every format in navd.io.logs.FORMATS and mentions ULog, DataFlash, tlog and X8."""
     doc = (ROOT / "docs" / "replay-format.md").read_text()
     from navd.io.logs import FORMATS
     section = doc.split("## Flight logs", 1)
