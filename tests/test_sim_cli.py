@@ -18,7 +18,12 @@ from navd.core.rotation import log_so3
 from navd.core.strapdown import strapdown_step
 
 
-def test_generate_writes_three_csvs(tmp_path: Path) -> None:
+def test_generate_writes_csvs_meta_and_plot(tmp_path: Path) -> None:
+    """GIVEN firmware-sim generate for a 20 s car480 run with jumps on and --plot,
+    WHEN it runs,
+    THEN the output folder holds exactly imu.csv, gnss.csv, truth.csv, meta.json and track.png
+    (no temp left, not private), the tables match the in-memory run bit for bit in the
+    documented column order, and meta.json records the seed, scenario and drawn biases."""
     out = tmp_path / "run"
     rc = main(["generate", "--scenario", "car480", "--seed", "1", "--out", str(out), "--quiet",
                "--plot", "--set", "duration_s=20", "--set", "gnss.jumps.enabled=true",
@@ -59,7 +64,9 @@ def test_generate_writes_three_csvs(tmp_path: Path) -> None:
 
 
 def test_csv_increments_replay_truth(tmp_path: Path) -> None:
-    """The error-free increments survive the CSV round trip well enough to replay exactly."""
+    """GIVEN a 40 s car480 run whose error-free IMU increments are written to CSV,
+    WHEN the increments read back are integrated by strapdown_step from the true start state,
+    THEN the final attitude matches the truth within 1e-9 rad and velocity within 1e-6 m/s."""
     run = generate(load_scenario("car480", overrides={"duration_s": 40.0}), seed=1)
     run.imu_inc = run.imu_inc_true          # write the error-free data
     run.write_csv(tmp_path)
@@ -81,6 +88,10 @@ def test_csv_increments_replay_truth(tmp_path: Path) -> None:
 
 
 def test_bad_scenario_leaves_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN a scenario file with an unknown key, or a --set value of the wrong type,
+    WHEN firmware-sim generate runs,
+    THEN it returns 2, the error names the field (with the right name and unit), and no
+    output folder is left behind."""
     bad = tmp_path / "bad.toml"
     text = (Path(firmware_sim.__file__).parent / "scenarios" / "static.toml").read_text()
     bad.write_text(text.replace("rate_hz = 100.0", "rate_hz = 100.0\nrate_khz = 1.0"))
@@ -100,6 +111,9 @@ def test_bad_scenario_leaves_nothing(tmp_path: Path, capsys: pytest.CaptureFixtu
 
 def test_failure_while_writing_leaves_nothing(tmp_path: Path,
                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """GIVEN a write_table that fails with "disk full" on its second call,
+    WHEN firmware-sim generate runs,
+    THEN the OSError propagates and the parent folder is left empty."""
     real = firmware_sim.csvio.write_table
     calls = []
 
@@ -118,6 +132,10 @@ def test_failure_while_writing_leaves_nothing(tmp_path: Path,
 
 
 def test_existing_output_needs_force(tmp_path: Path) -> None:
+    """GIVEN an output folder that already holds a file,
+    WHEN firmware-sim generate runs without and then with --force,
+    THEN without it returns 2 and keeps the file; with it returns 0 and replaces the folder's
+    contents with the new run."""
     out = tmp_path / "run"
     out.mkdir()
     (out / "old.txt").write_text("keep")
@@ -131,11 +149,18 @@ def test_existing_output_needs_force(tmp_path: Path) -> None:
 
 
 def test_parse_set() -> None:
+    """GIVEN --set strings of the form key=value,
+    WHEN parse_set reads them,
+    THEN each value is parsed as TOML (int, bool, list, quoted string, float) and a bare
+    word is kept as a string."""
     assert parse_set(["a.b=1", "c=true", "d=fast", "e=[1, 2]", 'f="x"', "g=2.5"]) == {
         "a.b": 1, "c": True, "d": "fast", "e": [1, 2], "f": "x", "g": 2.5}
 
 
 def test_module_entry_point(tmp_path: Path) -> None:
+    """GIVEN python -m firmware_sim run as a subprocess,
+    WHEN it is asked to list scenarios and to generate a 3 s multirotor run,
+    THEN both exit 0, the list names car480 and ship_dov, and the three CSVs are written."""
     r = subprocess.run([sys.executable, "-m", "firmware_sim", "list"], capture_output=True,
                        text=True, check=False, timeout=120)
     assert r.returncode == 0, r.stderr
