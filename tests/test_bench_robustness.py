@@ -20,6 +20,11 @@ def b() -> ModuleType:
 
 
 def test_longest_lockout_rule(b: ModuleType) -> None:
+    """GIVEN sequences of GNSS outcomes (accepted, rejected, not tried) at 0.1 s spacing,
+    WHEN longest_lockout_s measures them,
+    THEN a lock-out runs from the first refusal to the next acceptance (untried epochs do not
+    end it), the longest run counts, a run never ended lasts until the end of the data, and
+    no refusals (or no data) give 0."""
     A, R, N = b.ACCEPTED, b.REJECTED, b.NOT_TRIED
     t = [0, 100_000, 200_000, 300_000, 400_000, 500_000, 600_000, 700_000]
     # a run from 0.1 s to the acceptance at 0.4 s (the untried epoch in it does not end it)
@@ -33,6 +38,11 @@ def test_longest_lockout_rule(b: ModuleType) -> None:
 
 
 def test_outcome_from_counter_deltas(b: ModuleType) -> None:
+    """GIVEN estimator counters before and after one GNSS push,
+    WHEN _outcome classifies the push and GnssOutcomes.both combines position and velocity,
+    THEN any rise in an "ok" counter means accepted, else a rise in a "bad" counter (including
+    gnss_absurd_jump) means rejected, else not tried; combined, either accepted wins, then
+    either rejected."""
     before = {"pos_accepted": 5, "vel_rejected": 2, "vel_course_rejected": 1}
     # the joint block failed, velocity alone then passed: the velocity update was accepted
     after = dict(before, vel_course_rejected=2, vel_accepted=1, pos_rejected=1)
@@ -47,11 +57,19 @@ def test_outcome_from_counter_deltas(b: ModuleType) -> None:
 
 
 def test_resets_counts_reinit_and_reset_counters(b: ModuleType) -> None:
+    """GIVEN a counter dict with reinit*, *_reset, reset_* and unrelated counters,
+    WHEN resets() sums it,
+    THEN only the reinit, reset_ and _reset counters are added (2 + 3 + 4 = 9)."""
     assert b.resets({"reinit_gnss_jump": 2, "heading_reset": 3, "pos_rejected": 40,
                      "reset_lockout_vel": 4, "heading_aligned_from_course": 7}) == 9
 
 
 def test_row_figures_and_verdict(b: ModuleType) -> None:
+    """GIVEN synthetic per-instant errors and sigmas with a 10-instant unaligned start,
+    WHEN row_figures builds the table row for one run, and for two runs pooled,
+    THEN RMS, aligned-heading RMS, 3-sigma exceedance and tilt-after-60-s figures are as
+    constructed, the clean target misses hdg, tilt, >3s and lock; pooled runs share their
+    instants, keep the worst lock-outs and add the resets."""
     t = np.arange(100) * 1.0  # 100 instants, 40 of them at t < 60 s
     err = np.zeros((100, 3))
     err[:, 0] = 0.05          # roll RMS 0.05
@@ -82,8 +100,10 @@ def test_row_figures_and_verdict(b: ModuleType) -> None:
 
 
 def test_short_case_lockout_is_measured_as_its_length(b: ModuleType) -> None:
-    """car480 for 100 s; every fix in [40, 60) s is 500 m off: with the lock-out reset off,
-    20 s of refused positions; with the default reset, at most max_lockout_s (5 s)."""
+    """GIVEN car480 for 100 s with every fix in [40, 60) s 500 m off,
+    WHEN it is scored with the default lock-out reset and with the reset off,
+    THEN the default reset keeps the position lock-out within max_lockout_s (5 s); with it
+    off the lock-out measures the 20 s of refused positions and the row reports a miss."""
     run = generate(load_scenario("car480", {
         "duration_s": 100.0,
         "gnss.pos_steps": [{"start_s": 40.0, "end_s": 60.0, "north_m": 500.0}]}), seed=1)
