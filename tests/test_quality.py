@@ -15,10 +15,16 @@ def _run(*args: str) -> subprocess.CompletedProcess[str]:
 
 
 def test_ruff_clean() -> None:
+    """GIVEN the repository,
+    WHEN ruff checks navd, firmware_sim, tests and benchmarks,
+    THEN it reports nothing (exit code 0)."""
     r = _run("ruff", "check", "navd", "firmware_sim", "tests", "benchmarks")
     assert r.returncode == 0, r.stdout + r.stderr
 
 
 def test_mypy_strict_clean() -> None:
+    """GIVEN the repository,
+    WHEN mypy --strict checks navd and firmware_sim,
+    THEN it reports nothing (exit code 0)."""
     r = _run("mypy", "--strict", "navd", "firmware_sim")
     assert r.returncode == 0, r.stdout + r.stderr
