@@ -50,6 +50,10 @@ def make_grid(lat_deg: Arr, lon_deg: Arr, with_dg: bool = True) -> DovGrid:
 @pytest.mark.parametrize("lat0, lon0, step", [(20.0, 110.0, 0.5), (-40.0, -75.0, 1.0 / 60.0),
                                               (60.0, 355.0, 0.25)])
 def test_bilinear_fields_are_interpolated_exactly(lat0: float, lon0: float, step: float) -> None:
+    """GIVEN DovGrids of fields bilinear in (lat, lon), at several origins and spacings,
+    WHEN eval_into is called at 500 random points and at every node,
+    THEN xi, eta and dg equal the analytic field to 1e-10 relative,
+    and every node, corners and edges included, returns its own value."""
     lat = lat0 + step * np.arange(11)
     lon = lon0 + step * np.arange(9)
     g = make_grid(lat, lon)
@@ -71,6 +75,9 @@ def test_bilinear_fields_are_interpolated_exactly(lat0: float, lon0: float, step
 
 
 def test_interpolation_is_continuous_across_cells() -> None:
+    """GIVEN a DovGrid of random node values,
+    WHEN it is evaluated 1e-12 rad either side of every interior cell edge in lat and lon,
+    THEN both sides agree to within the grid's maximum slope times that offset."""
     lat = 10.0 + 0.5 * np.arange(6)
     lon = 20.0 + 0.5 * np.arange(7)
     rng = np.random.default_rng(2)
@@ -95,6 +102,10 @@ def test_interpolation_is_continuous_across_cells() -> None:
 
 
 def test_off_grid_is_flagged_and_zero() -> None:
+    """GIVEN a small regional DovGrid,
+    WHEN it is evaluated just outside each edge, 180 deg away, and at NaN lat or lon,
+    THEN eval_into returns False and zeroes the output; the same point 360 deg
+    east or west is on the grid."""
     g = make_grid(20.0 + 0.5 * np.arange(5), 110.0 + 0.5 * np.arange(5))
     out = np.full(3, 7.0)
     for la, lo in [(19.99, 111.0), (22.01, 111.0), (21.0, 109.99), (21.0, 112.01),
@@ -108,6 +119,9 @@ def test_off_grid_is_flagged_and_zero() -> None:
 
 
 def test_global_grid_wraps_across_the_seam() -> None:
+    """GIVEN a global grid with columns every 30 deg from 0 to 330 (no repeated 360 column),
+    WHEN it is evaluated at longitude 345 deg and at -15 deg,
+    THEN both interpolate between the 330 and 0 deg columns (5.5 arcsec)."""
     lat = np.array([-10.0, 0.0, 10.0])
     lon = np.arange(0.0, 360.0, 30.0)  # 12 columns, the 13th would repeat the first
     xi = np.tile(np.arange(12.0), (3, 1)) * ARCSEC
@@ -120,6 +134,12 @@ def test_global_grid_wraps_across_the_seam() -> None:
 
 
 def test_along_track_sinusoid() -> None:
+    """GIVEN an AlongTrackSinusoid field on a 45 deg course with xi/eta sinusoids and a
+    constant dg,
+    WHEN it is evaluated a quarter xi wavelength along the course, 1 km across it,
+    and along a track through that point and the origin,
+    THEN xi is at its 20 arcsec peak, eta and dg have their phase-shifted and constant
+    values, the field is constant across the course, and the origin gives xi = 0."""
     lat0, lon0, c = 22.0 * D2R, 113.0 * D2R, 45.0 * D2R
     f = AlongTrackSinusoid(lat0, lon0, c, xi_amp_rad=20 * ARCSEC, xi_wavelength_m=360e3,
                            eta_amp_rad=10 * ARCSEC, eta_wavelength_m=180e3,
@@ -163,6 +183,10 @@ def _ok_arrays() -> tuple[Arr, Arr, Arr, Arr]:
     (lambda la, lo, xi, eta: (la + 80.0, lo, xi, eta), "outside [-90, 90]"),
 ])
 def test_bad_grids_are_refused(mutate: object, needle: str) -> None:
+    """GIVEN a valid grid's arrays with one defect each (NaN cell, unsorted or irregular
+    axis, wrong shape, wrong unit, a single row, latitude beyond 90 deg),
+    WHEN a DovGrid is built from them,
+    THEN DovGridError is raised with a message naming the defect."""
     la, lo, xi, eta = mutate(*_ok_arrays())  # type: ignore[operator]
     with pytest.raises(DovGridError) as exc:
         DovGrid(la, lo, xi, eta)
@@ -170,6 +194,11 @@ def test_bad_grids_are_refused(mutate: object, needle: str) -> None:
 
 
 def test_npz_round_trip_and_bad_files(tmp_path: Path) -> None:
+    """GIVEN a grid saved with save_dov_grid to .npz, and broken files (missing array,
+    NaN cell, unsorted axis, not a zip, absent, unknown extension),
+    WHEN load_dov_grid reads them,
+    THEN the good grid round-trips with its model name, and each bad one raises
+    DovGridError naming the file and the cause."""
     lat, lon, xi, eta = _ok_arrays()
     dg = np.full((4, 5), 12 * MGAL)
     p = tmp_path / "g.npz"
@@ -221,6 +250,11 @@ def _gmt_grid(path: Path, lat: Arr, lon: Arr, z: Arr, units: str | None,
 
 
 def test_netcdf_round_trip_and_gmt_layouts(tmp_path: Path) -> None:
+    """GIVEN a grid saved to netCDF, and GMT-style one-variable grids (north-to-south rows,
+    (x, y) storage, missing or unknown units, a fill cell, an irregular or mismatched axis),
+    WHEN load_dov_grid reads them, with and without angle_unit and eta_path,
+    THEN the round trip and the GMT pair load correctly once angle_unit supplies the missing
+    unit, and each defect raises DovGridError with a message naming it."""
     lat, lon, xi, eta = _ok_arrays()
     rng = np.random.default_rng(3)
     xi = xi + rng.normal(0, 1e-6, xi.shape)
@@ -271,6 +305,10 @@ def _dov(table: object) -> DovSection:
 
 
 def test_settings_validation() -> None:
+    """GIVEN [dov] config tables,
+    WHEN the section is built,
+    THEN an empty table gives the defaults, and an unknown key, a non-boolean enabled or a
+    bad angle_unit raise ConfigError naming the problem."""
     assert _dov({}) == DovSection()
     with pytest.raises(ConfigError, match="unknown key 'gird'"):
         _dov({"gird": "x.nc"})
@@ -282,6 +320,12 @@ def test_settings_validation() -> None:
 
 def test_build_estimator_keeps_normal_gravity_on_a_bad_grid(
         tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """GIVEN dov enabled with a grid file containing a NaN cell, with no grid, disabled,
+    with a misspelt key, and with use_dg=false on a good grid,
+    WHEN build_estimator builds the estimator,
+    THEN the bad grid is refused with a warning and normal gravity is kept (status says so),
+    a missing grid and "off" are reported, the typo raises ConfigError, and use_dg=false
+    keeps the deflections but zeroes the gravity disturbance."""
     lat, lon, xi, eta = _ok_arrays()
     xi[0, 0] = np.nan
     np.savez(tmp_path / "bad.npz", lat_deg=lat, lon_deg=lon, xi_arcsec=xi / ARCSEC,
@@ -312,6 +356,11 @@ def test_build_estimator_keeps_normal_gravity_on_a_bad_grid(
 
 
 def test_status_predicts_the_seed_002_effect() -> None:
+    """GIVEN an estimator at 10 m/s on a 30 deg course in an along-track sinusoid DOV field,
+    WHEN dov_status is read,
+    THEN it reports "on grid", the uncompensated tilt (eta, 0), the heading effect
+    eta tan L + xi_dot / (cos L Omega_ie) and the xi rate; predicted_effect maps (xi, eta)
+    to (eta, -xi, 0)."""
     lat0, lon0, c = 22.0 * D2R, 113.0 * D2R, 30.0 * D2R
     amp, lam = 20 * ARCSEC, 360e3
     f = AlongTrackSinusoid(lat0, lon0, c, xi_amp_rad=amp, xi_wavelength_m=lam,
@@ -344,6 +393,11 @@ def _car_grid(run_pos: Arr, margin_deg: float) -> DovGrid:
 
 
 def test_estimator_flags_off_grid_and_uses_the_grid_on_it() -> None:
+    """GIVEN a car480 run with a grid covering the whole track, then a tiny grid around its start,
+    WHEN the estimator processes the run,
+    THEN with full coverage it stays on grid with nonzero DOV and no off-grid count;
+    with the tiny grid it counts off-grid epochs, zeroes the DOV and reports
+    "off grid: normal gravity"."""
     from firmware_sim import generate, load_scenario
 
     run = generate(load_scenario("car480", {"duration_s": 120.0}), seed=1)
@@ -374,6 +428,9 @@ def test_estimator_flags_off_grid_and_uses_the_grid_on_it() -> None:
 
 
 def test_gnss_updates_with_a_grid_do_not_allocate() -> None:
+    """GIVEN a car480 run and a DovGrid covering the track,
+    WHEN the estimator steps through the samples (over 100 GNSS updates, on grid),
+    THEN no numpy memory is traced, peak Python allocation is under 4 KiB and growth under 1 KiB."""
     from firmware_sim import generate, load_scenario
 
     run = generate(load_scenario("car480", {"duration_s": 150.0}), seed=2)

@@ -72,6 +72,9 @@ def _one(lat_deg: float, lon_deg: float) -> tuple[Arr, Arr]:
 
 
 def test_normal_field_j2_is_the_published_wgs84_value() -> None:
+    """GIVEN navd's WGS-84 normal gravity field,
+    WHEN its J2 is converted to the normalized C20,
+    THEN it equals NIMA TR8350.2's -0.484166774985e-3 to 1e-11 relative."""
     # NIMA TR8350.2 (WGS 84), normalized C20 of the ellipsoidal (normal) field
     assert -normal_j2() / math.sqrt(5.0) == pytest.approx(-0.484166774985e-3, rel=1e-11)
 
@@ -109,6 +112,12 @@ def test_normal_plumb_line_curvature_above_the_ellipsoid() -> None:
 
 @pytest.mark.parametrize("point", GEOGRAPHICLIB_EGM96, ids=lambda p: f"{p[0][0]:.2f}")
 def test_egm96_matches_geographiclib(egm96: Egm96Gravitas, point: tuple) -> None:  # type: ignore[type-arg]
+    """GIVEN EGM96 to degree 360 and GeographicLib's published values at Mount Everest and
+    four points near 17 deg at 300 m and 400 km,
+    WHEN gravity, the gravity disturbance and the deflections are computed,
+    THEN gravity and disturbance match (horizontal 1e-4 mGal, vertical 0.01 mGal), the
+    spherical xi/eta match to 1e-4 arcsec, and the geodetic eta matches with xi within the
+    geodetic-geocentric latitude effect."""
     (lat_deg, lon_deg, h), g_enu, d_enu, (_, xi_a, eta_a) = point
     lat, lon = _one(lat_deg, lon_deg)
     g = gravity_ned(egm96, lat, lon, h)[0]
@@ -150,6 +159,11 @@ def test_sign_convention_at_mount_everest(egm96: Egm96Gravitas) -> None:
 
 
 def test_cli_writes_loadable_grids(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN `navd dov-grid` run over a South China Sea box with EGM96, over a wide box
+    with --model normal, and with a reversed latitude range or a .txt output,
+    WHEN the written grids are loaded,
+    THEN the EGM96 grid is 5x5 with dg, holds the model's values at its nodes and has
+    deflections of 0.5-30 arcsec; the normal-field grid is zero; the bad arguments exit."""
     out = tmp_path / "scs.nc"
     assert main(["--lat-min", "21", "--lat-max", "22", "--lon-min", "113", "--lon-max", "114",
                  "--step-arcmin", "15", "--out", str(out), "--quiet"]) == 0
