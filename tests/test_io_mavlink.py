@@ -96,6 +96,10 @@ def assert_imu_close(got: ImuSample, want: ImuSample, rel: float, abs_: float = 
 
 
 def test_highres_imu_round_trip_first_sample_dropped_and_counted() -> None:
+    """GIVEN 50 IMU samples at 1 kHz sent as HIGHRES_IMU and a decoder with no nominal IMU rate,
+    WHEN every frame is decoded,
+    THEN the first sample (no interval yet) is dropped and counted as imu_first_sample,
+    and the other 49 match the source to float32 precision."""
     tx, dec = MavlinkTx(), MavlinkDecoder(cfg())
     src = imu_seq(50)
     out = feed_all(dec, (tx.highres_imu(s) for s in src))
@@ -107,6 +111,10 @@ def test_highres_imu_round_trip_first_sample_dropped_and_counted() -> None:
 
 
 def test_highres_imu_nominal_rate_keeps_first_sample() -> None:
+    """GIVEN a decoder configured with a nominal IMU rate of 1000 Hz,
+    WHEN three HIGHRES_IMU frames are decoded,
+    THEN all three samples come out, the first with dt 1000 us from the nominal rate,
+    and imu_first_sample is still counted once."""
     tx, dec = MavlinkTx(), MavlinkDecoder(cfg(nominal_imu_rate_hz=1000.0))
     src = imu_seq(3)
     out = feed_all(dec, (tx.highres_imu(s) for s in src))
@@ -115,6 +123,10 @@ def test_highres_imu_nominal_rate_keeps_first_sample() -> None:
 
 
 def test_highres_imu_needs_accel_and_gyro_updated_bits() -> None:
+    """GIVEN three HIGHRES_IMU frames, the middle one flagging only the accelerometer as updated,
+    WHEN they are decoded,
+    THEN the middle one is skipped and counted as imu_fields_not_updated,
+    and the third sample spans both intervals (dt 2000 us, zero-order hold)."""
     tx, dec = MavlinkTx(), MavlinkDecoder(cfg(nominal_imu_rate_hz=1000.0))
     src = imu_seq(3)
     out = feed_all(dec, [tx.highres_imu(src[0]), tx.highres_imu(src[1], fields_updated=0x7),
@@ -126,6 +138,10 @@ def test_highres_imu_needs_accel_and_gyro_updated_bits() -> None:
 
 
 def test_scaled_imu_units_mg_and_mrad() -> None:
+    """GIVEN two SCALED_IMU frames 20 ms apart, the second carrying accel in mG and gyro in mrad/s,
+    WHEN they are decoded,
+    THEN one sample comes out at 1.02 s with dt 20 ms, reading 1000 mG as 1 g (not 1 m/s^2)
+    and 1000 mrad/s as 1 rad/s, integrated over the 20 ms."""
     enc = mav.MAVLink(None, 1, 1)
     dec = MavlinkDecoder(cfg())
     frames = [
@@ -142,6 +158,10 @@ def test_scaled_imu_units_mg_and_mrad() -> None:
 
 
 def test_scaled_imu_round_trip_and_time_boot_ms_wrap() -> None:
+    """GIVEN 40 IMU samples at 1 kHz sent as SCALED_IMU, starting 20 ms before time_boot_ms wraps,
+    WHEN they are decoded,
+    THEN 39 samples come out with dt 1000 us and the source timestamps, monotonic past the wrap,
+    and values within the mG / mrad/s quantisation."""
     tx, dec = MavlinkTx(), MavlinkDecoder(cfg())
     t0 = (2**32 - 20) * 1000  # 20 ms before time_boot_ms wraps
     src = imu_seq(40, dt_us=1000, t0=t0)
@@ -155,6 +175,10 @@ def test_scaled_imu_round_trip_and_time_boot_ms_wrap() -> None:
 
 
 def test_scaled_imu2_is_instance_1() -> None:
+    """GIVEN two SCALED_IMU2 frames,
+    WHEN they are decoded with the default imu_id 0 and with imu_id 1,
+    THEN the default decoder yields nothing and the imu_id 1 decoder yields one sample
+    with dvel_z of -1000 mG over 1 ms."""
     enc = mav.MAVLink(None, 1, 1)
     frames = [enc.scaled_imu2_encode(t, 0, 0, -1000, 0, 0, 0, 0, 0, 0).pack(enc) for t in (10, 11)]
     assert feed_all(MavlinkDecoder(cfg()), frames) == []  # default imu_id=0
@@ -164,6 +188,10 @@ def test_scaled_imu2_is_instance_1() -> None:
 
 
 def test_raw_imu_needs_scale_then_round_trips() -> None:
+    """GIVEN five RAW_IMU frames encoded with known gyro and accel LSB scales,
+    WHEN they are decoded without the scales configured, and again with them,
+    THEN the first decoder yields nothing and counts all five as raw_imu_unscaled,
+    and the second yields four samples matching the source within half an accel LSB."""
     tx = MavlinkTx()
     src = imu_seq(5)
     gs, as_ = 1e-4, 1e-3
@@ -180,6 +208,9 @@ def test_raw_imu_needs_scale_then_round_trips() -> None:
 
 
 def test_only_configured_imu_message_feeds() -> None:
+    """GIVEN every IMU sample sent both as HIGHRES_IMU and as SCALED_IMU,
+    WHEN the frames are decoded with the default config (HIGHRES_IMU only),
+    THEN one sample per source sample (after the first) comes out: SCALED_IMU is ignored."""
     tx = MavlinkTx()
     src = imu_seq(3)
     frames = [f for s in src for f in (tx.highres_imu(s), tx.scaled_imu(s))]
@@ -191,6 +222,10 @@ def test_only_configured_imu_message_feeds() -> None:
 
 
 def test_gps_input_round_trip_with_geoid_separation() -> None:
+    """GIVEN an RTK-fixed GNSS sample sent as GPS_INPUT with MSL altitude (geoid separation 47.5 m),
+    WHEN it is decoded with the same geoid separation configured,
+    THEN time, fix type, lat/lon (to 1e-7 deg), ellipsoid altitude (to 1 mm),
+    velocity and accuracies all match the source."""
     g = gnss(fix_type=FixType.RTK_FIXED)
     tx, dec = MavlinkTx(), MavlinkDecoder(cfg(geoid_sep_m=47.5))
     (s,) = feed_all(dec, [tx.gps_input(g, geoid_sep_m=47.5)])
@@ -204,6 +239,11 @@ def test_gps_input_round_trip_with_geoid_separation() -> None:
 
 
 def test_gps_input_ignore_flags_give_nan_and_dop_fallback() -> None:
+    """GIVEN a GPS_INPUT flagging vertical velocity, horizontal and speed accuracy as ignored,
+    with hdop 0.9, and a decoder with UERE 4 m and default velocity accuracy 0.7 m/s,
+    WHEN it is decoded,
+    THEN vel_d is NaN (vel_n kept), h_acc is hdop x UERE (hdop unitless, not x100)
+    and vel_acc is the configured default."""
     tx = MavlinkTx()
     flags = (mav.GPS_INPUT_IGNORE_FLAG_VEL_VERT | mav.GPS_INPUT_IGNORE_FLAG_HORIZONTAL_ACCURACY
              | mav.GPS_INPUT_IGNORE_FLAG_SPEED_ACCURACY)
@@ -216,6 +256,10 @@ def test_gps_input_ignore_flags_give_nan_and_dop_fallback() -> None:
 
 
 def test_gps_raw_int_units_velocity_from_course_and_no_vertical() -> None:
+    """GIVEN a GNSS sample sent as GPS_RAW_INT,
+    WHEN it is decoded,
+    THEN altitude comes from alt_ellipsoid, north/east velocity is rebuilt from speed and course
+    (within the cdeg quantisation), vel_d is NaN and the accuracies match."""
     tx, dec = MavlinkTx(), MavlinkDecoder(cfg())
     (s,) = feed_all(dec, [tx.gps_raw_int(gnss())])
     assert isinstance(s, GnssSample)
@@ -226,6 +270,11 @@ def test_gps_raw_int_units_velocity_from_course_and_no_vertical() -> None:
 
 
 def test_gps_raw_int_msl_fallback_and_eph_is_dop_not_metres() -> None:
+    """GIVEN a GPS_RAW_INT at 100 m MSL with no alt_ellipsoid, eph 150, epv 250, no h_acc and
+    unknown velocity, and a decoder with geoid separation 47 m and UERE 3 m,
+    WHEN it is decoded,
+    THEN altitude is 147 m (counted as gnss_alt_from_msl), h_acc/v_acc are 1.5 and 2.5 x UERE
+    (eph/epv are DOP x100, not metres), velocity is NaN and latitude is kept."""
     enc = mav.MAVLink(None, 1, 1)
     # alt 100 m MSL, no alt_ellipsoid, eph 150 (HDOP 1.5), h_acc 0 (unknown), vel unknown.
     frame = enc.gps_raw_int_encode(
@@ -242,6 +291,9 @@ def test_gps_raw_int_msl_fallback_and_eph_is_dop_not_metres() -> None:
 
 
 def test_hil_gps_velocity_cm_per_s() -> None:
+    """GIVEN a GNSS sample with velocity (-12.34, 0.56, 1.5) m/s sent as HIL_GPS (cm/s on the wire),
+    WHEN it is decoded with the same geoid separation,
+    THEN the velocity comes back exactly and the ellipsoid altitude to 1 mm."""
     tx, dec = MavlinkTx(), MavlinkDecoder(cfg(geoid_sep_m=10.0))
     (s,) = feed_all(dec, [tx.hil_gps(gnss(vel_n=-12.34, vel_e=0.56, vel_d=1.5), geoid_sep_m=10.0)])
     assert isinstance(s, GnssSample)
@@ -268,6 +320,10 @@ def test_hil_gps_velocity_cm_per_s() -> None:
     ],
 )
 def test_gps_input_rejections_are_counted(kw: dict[str, object], reason: str) -> None:
+    """GIVEN a GPS_INPUT with one bad field (no 3D fix, latitude out of range, absurd altitude
+    or velocity, a non-finite value, zero time, or a time beyond 2^53 / 2^63 us),
+    WHEN it is decoded,
+    THEN no sample comes out and the counter for that reason is 1."""
     tx, dec = MavlinkTx(), MavlinkDecoder(cfg())
     assert feed_all(dec, [tx.gps_input(gnss(**kw))]) == []
     assert dec.counters[reason] == 1
@@ -285,6 +341,11 @@ def test_gps_input_rejections_are_counted(kw: dict[str, object], reason: str) ->
 def test_highres_imu_rejections_are_counted(
     rates: tuple[float, ...], reason: str
 ) -> None:
+    """GIVEN a HIGHRES_IMU with a non-finite value, a 60 g accel or a 40 rad/s gyro, between two
+    good frames 2 ms apart,
+    WHEN the three are decoded,
+    THEN the bad frame is counted under its reason, and the single output sample spans the
+    whole 2000 us: the bad sample does not cut the time line."""
     enc = mav.MAVLink(None, 1, 1)
     g = rates[:3]
     a = rates[3:]
@@ -299,6 +360,10 @@ def test_highres_imu_rejections_are_counted(
 
 
 def test_imu_gap_backwards_and_duplicate_time() -> None:
+    """GIVEN HIGHRES_IMU frames a, b, b again, c, one 0.5 s after c, and one before a,
+    WHEN they are decoded,
+    THEN only b and c come out, and the duplicate time, the gap and the backwards step
+    are each counted once."""
     tx, dec = MavlinkTx(), MavlinkDecoder(cfg())
     a, b, c = imu_seq(3)
     far = ImuSample(c.t_us + 500_000, 1000, 0, 0, 0, 0, 0, -0.0098)
@@ -311,6 +376,10 @@ def test_imu_gap_backwards_and_duplicate_time() -> None:
 
 
 def test_zero_time_is_rejected_unless_receive_time_is_used() -> None:
+    """GIVEN two HIGHRES_IMU frames with time 0,
+    WHEN they are decoded by default, and by a decoder using receive time (1000 and 3500 us),
+    THEN the first yields nothing and counts both as imu_no_timestamp, and the second yields
+    one sample stamped 3500 us with dt 2500 us."""
     enc = mav.MAVLink(None, 1, 1)
     frames = [enc.highres_imu_encode(0, 0, 0, -9.8, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0xFFFF).pack(enc)
               for _ in range(2)]
@@ -323,6 +392,10 @@ def test_zero_time_is_rejected_unless_receive_time_is_used() -> None:
 
 
 def test_allowlist_and_sequence_loss() -> None:
+    """GIVEN a decoder allowing only system/component (1, 1), a frame from (2, 1) among the
+    frames of (1, 1), and one frame of (1, 1) lost on the wire,
+    WHEN the frames are decoded,
+    THEN only (1, 1)'s fixes come out, with not_allowed and seq_lost each counted once."""
     tx_ok, tx_other = MavlinkTx(sysid=1, compid=1), MavlinkTx(sysid=2, compid=1)
     dec = MavlinkDecoder(cfg(allow=frozenset({(1, 1)})))
     frames = [tx_ok.gps_input(gnss(t_us=1)), tx_other.gps_input(gnss(t_us=2)),
@@ -336,6 +409,9 @@ def test_allowlist_and_sequence_loss() -> None:
 
 
 def test_repeated_fix_is_dropped() -> None:
+    """GIVEN GPS_RAW_INT frames with time 100 three times then 200 (ArduPilot re-sending a fix),
+    WHEN they are decoded,
+    THEN each time comes out once and the two repeats are counted as gnss_repeat."""
     # ArduPilot re-sends the last fix (same time_usec) when streaming faster than the GPS.
     tx, dec = MavlinkTx(), MavlinkDecoder(cfg())
     frames = [tx.gps_raw_int(gnss(t_us=t)) for t in (100, 100, 100, 200)]
@@ -347,6 +423,9 @@ def test_repeated_fix_is_dropped() -> None:
 
 
 def test_stream_split_at_every_byte_boundary() -> None:
+    """GIVEN a byte stream of three GPS_INPUT frames,
+    WHEN it is fed to a fresh decoder in two pieces, cut at every byte in turn,
+    THEN all three fixes come out in order for every cut."""
     tx = MavlinkTx()
     blob = b"".join(tx.gps_input(gnss(t_us=1_000_000 + i)) for i in range(3))
     for cut in range(1, len(blob)):
@@ -356,6 +435,10 @@ def test_stream_split_at_every_byte_boundary() -> None:
 
 
 def test_stream_resyncs_after_a_lost_byte() -> None:
+    """GIVEN a stream of four GPS_INPUT frames with one byte lost inside frame 1,
+    WHEN it is fed to the decoder,
+    THEN frames 0, 2 and 3 come out (frame 2 is not skipped with the damaged one)
+    and a bad CRC is counted."""
     tx = MavlinkTx()
     frames = [tx.gps_input(gnss(t_us=1_000_000 + i)) for i in range(4)]
     damaged = frames[1][:20] + frames[1][21:]  # one byte lost inside frame 1
@@ -367,6 +450,11 @@ def test_stream_resyncs_after_a_lost_byte() -> None:
 
 
 def test_datagram_with_truncated_frame_then_good_frame() -> None:
+    """GIVEN a datagram with the first 30 bytes of one frame followed by a whole frame,
+    and then a datagram with a frame missing its last 3 bytes,
+    WHEN each is fed as a datagram,
+    THEN the whole frame comes out, the cut one is counted as truncated, and a following
+    good datagram decodes (no state left behind)."""
     tx = MavlinkTx()
     f1, f2 = tx.gps_input(gnss(t_us=1)), tx.gps_input(gnss(t_us=2))
     dec = MavlinkDecoder(cfg())
@@ -379,6 +467,9 @@ def test_datagram_with_truncated_frame_then_good_frame() -> None:
 
 
 def test_crc_corruption_is_counted() -> None:
+    """GIVEN a GPS_INPUT frame with its last CRC byte flipped,
+    WHEN it is fed as a datagram,
+    THEN nothing comes out and bad_crc is counted once."""
     tx = MavlinkTx()
     f = bytearray(tx.gps_input(gnss()))
     f[-1] ^= 0x55
@@ -388,6 +479,9 @@ def test_crc_corruption_is_counted() -> None:
 
 
 def test_mavlink1_frames_are_accepted() -> None:
+    """GIVEN a GPS_INPUT packed as a MAVLink 1 frame,
+    WHEN it is decoded,
+    THEN one GNSS sample comes out with its east velocity."""
     enc = mav.MAVLink(None, 1, 1)
     m = enc.gps_input_encode(5, 0, 0, 0, 0, 3, 473977000, 85456000, 400.0, 1.0, 1.0,
                              1.0, 2.0, 3.0, 0.3, 1.0, 2.0, 9)
@@ -399,6 +493,11 @@ def test_mavlink1_frames_are_accepted() -> None:
 
 
 def test_encoders_attitude_quaternion_heartbeat_global_position() -> None:
+    """GIVEN an encoder (sysid 42, compid 191, geoid separation 47 m) and a solution at 600 m,
+    WHEN HEARTBEAT, ATTITUDE, ATTITUDE_QUATERNION and GLOBAL_POSITION_INT (home 500 m) are
+    encoded and parsed by pymavlink,
+    THEN they are MAVLink 2 with our ids and sequence 0..3, and carry the solution's angles,
+    rates, quaternion, lat/lon, MSL/relative altitude in mm, velocity in cm/s and heading."""
     enc = MavlinkEncoder(sysid=42, compid=191, geoid_sep_m=47.0)
     sol = solution()
     blob = (enc.encode_heartbeat() + enc.encode_attitude(sol, 1234)
@@ -421,11 +520,18 @@ def test_encoders_attitude_quaternion_heartbeat_global_position() -> None:
 
 
 def test_global_position_rejects_non_finite() -> None:
+    """GIVEN a solution with a NaN latitude,
+    WHEN GLOBAL_POSITION_INT is encoded,
+    THEN ValueError is raised."""
     with pytest.raises(ValueError):
         MavlinkEncoder().encode_global_position_int(solution(lat_rad=math.nan), 0)
 
 
 def test_url_parsing() -> None:
+    """GIVEN udpin/udp/udpout/serial link URLs and malformed ones,
+    WHEN they are parsed,
+    THEN udp means udpin, udpout keeps host and port, "device,baud" gives a serial link,
+    and a missing host, bad port, unknown scheme or bad baud raise ValueError."""
     assert parse_mavlink_url("udpin:0.0.0.0:14550").kind == "udpin"
     assert parse_mavlink_url("udp:127.0.0.1:14550").kind == "udpin"
     out = parse_mavlink_url("udpout:10.0.0.2:14551")
@@ -448,6 +554,11 @@ async def _wait_for(pred: object, timeout_s: float = 3.0) -> None:
 
 
 def test_udp_loopback_samples_and_replies() -> None:
+    """GIVEN a udpin link and a udpout link to it on loopback,
+    WHEN 100 HIGHRES_IMU frames are sent, then the udpin side sends a solution, a heartbeat
+    and runs its periodic heartbeat,
+    THEN udpin refuses to send before it has a peer, receives the 99 samples in order,
+    and its replies (including the periodic heartbeats) reach the last sender."""
     async def main() -> None:
         got: list[Sample] = []
         rx = await MavlinkLink.open("udpin:127.0.0.1:0", MavlinkDecoder(cfg()), got.append)
@@ -479,7 +590,9 @@ def test_udp_loopback_samples_and_replies() -> None:
 
 
 def test_pymavlink_client_sees_attitude() -> None:
-    """A stock pymavlink consumer (what mavlogdump.py uses) decodes our ATTITUDE."""
+    """GIVEN a stock pymavlink udpin connection (what mavlogdump.py uses),
+    WHEN our encoder (sysid 7) sends it ATTITUDE frames,
+    THEN it decodes an ATTITUDE from system 7 with our roll, pitch and yaw."""
     from pymavlink import mavutil
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
@@ -503,6 +616,10 @@ def test_pymavlink_client_sees_attitude() -> None:
 
 
 def test_serial_link_on_a_pty() -> None:
+    """GIVEN a serial link opened on a pseudo-terminal at 921600 baud,
+    WHEN five GPS_INPUT frames are written to the other end in two pieces split mid-frame,
+    and the link sends a heartbeat,
+    THEN the five fixes come out in order and the other end reads back the heartbeat bytes."""
     async def main() -> None:
         master, slave = os.openpty()
         path = os.ttyname(slave)
@@ -533,6 +650,9 @@ def test_serial_link_on_a_pty() -> None:
 
 
 def test_tcp_client_link() -> None:
+    """GIVEN a TCP server that sends three GPS_INPUT frames and then reads,
+    WHEN navd opens a tcp: link to it and sends a heartbeat,
+    THEN the three fixes come out in order and the server receives exactly the heartbeat."""
     async def main() -> None:
         sim = MavlinkTx()
         received = bytearray()
@@ -568,8 +688,11 @@ def test_tcp_client_link() -> None:
 
 def test_tcp_link_reopens_after_the_peer_drops_and_returns(
         caplog: pytest.LogCaptureFixture) -> None:
-    """A dropped stream is reopened with a growing delay; a peer that is gone for a while
-    costs failed attempts (logged, counted as they succeed or fail), never the link."""
+    """GIVEN a TCP peer that sends two fixes per connection then closes (the first ending in a
+    partial frame), and a link reopening with a growing delay,
+    WHEN the peer is gone for 0.4 s and then returns on the same port, and the link is closed,
+    THEN no reopen succeeds while it is gone ("reopen failed" logged), the link reopens and
+    decodes 100, 101, 200, 201, and after close it makes no more attempts."""
     caplog.set_level(logging.INFO, logger="navd")
 
     async def main() -> None:
