@@ -52,6 +52,9 @@ def car() -> SimRun:
 
 
 def test_car480_full_replay(car: SimRun) -> None:
+    """GIVEN the full car480 run (48000 IMU steps),
+    WHEN its error-free increments are replayed through navd's strapdown,
+    THEN attitude, velocity and position stay within 1e-9 rad, 1e-6 m/s and 1 mm of the truth."""
     assert car.imu_inc_true.shape == (48000, 6)
     att, vel, pos = replay_errors(car)
     assert att <= 1e-9
@@ -64,6 +67,10 @@ def test_car480_full_replay(car: SimRun) -> None:
     ("pol_static", 300.0),
 ])
 def test_scenario_replay(name: str, duration: float) -> None:
+    """GIVEN the drive_long, multirotor, ship_dov, static and pol_static scenarios at a set
+    duration,
+    WHEN each is generated and its error-free increments replayed through the strapdown,
+    THEN the truth ends at that duration and the replay stays within 1e-9 rad, 1e-6 m/s, 1 mm."""
     run = generate(load_scenario(name, overrides={"duration_s": duration}), seed=3)
     assert run.truth_t_us[-1] == round(duration * 1e6)
     att, vel, pos = replay_errors(run)
@@ -73,6 +80,9 @@ def test_scenario_replay(name: str, duration: float) -> None:
 
 
 def test_static_sway_spans_the_seed_tilt_range() -> None:
+    """GIVEN pol_static for 600 s set at 30 deg pitch,
+    WHEN it is generated,
+    THEN the pitch sways over 3.0-3.6 deg (the seed's 28.65-32.14 deg range) with zero velocity."""
     run = generate(load_scenario("pol_static", {"duration_s": 600.0,
                                                 "trajectory.pitch_deg": 30.0}), seed=1)
     pitch = np.degrees(run.truth_euler[:, 1])
@@ -81,7 +91,9 @@ def test_static_sway_spans_the_seed_tilt_range() -> None:
 
 
 def test_replay_detects_a_wrong_dov() -> None:
-    """The replay check is sensitive: dropping the DOV breaks it (so the DOV is really in)."""
+    """GIVEN a ship_dov run whose deflection of the vertical is non-zero,
+    WHEN it is replayed through the strapdown with the DOV left out,
+    THEN the final velocity is off by more than 1 mm/s: the replay check sees the DOV."""
     run = generate(load_scenario("ship_dov", overrides={"duration_s": 600.0}), seed=3)
     assert np.abs(run.truth_dov[:, :2]).max() > 1e-6
     c = run.truth_mat_nb[0].copy()
@@ -96,6 +108,9 @@ def test_replay_detects_a_wrong_dov() -> None:
 
 
 def test_euler_to_mats_matches_navd() -> None:
+    """GIVEN 20 random Euler angle triples (pitch within +-1.2 rad),
+    WHEN the simulator's vectorised euler_to_mats converts them,
+    THEN each matrix equals navd's euler_to_mat to 1e-15."""
     rng = np.random.default_rng(0)
     e = rng.uniform(-3.0, 3.0, (20, 3))
     e[:, 1] /= 2.5
@@ -113,6 +128,11 @@ def _wrap(a: Arr) -> Arr:
 
 
 def test_car480_profile(car: SimRun) -> None:
+    """GIVEN the car480 run,
+    WHEN its truth and error-free increments are examined,
+    THEN it is level and unaccelerated at 10 m/s for 10 s, cruises at 10-24 m/s, turns at
+    up to ~9 deg/s with an S-curve at 95-125 s, has road grade, course equal to yaw (no
+    sideslip) and roll following the lateral acceleration."""
     t = car.truth_t_us * 1e-6
     v = car.truth_vel_n
     speed = np.linalg.norm(v, axis=1)
@@ -149,6 +169,10 @@ def test_car480_profile(car: SimRun) -> None:
 
 
 def test_sideslip_option_moves_course_off_yaw() -> None:
+    """GIVEN car480 for 60 s with a sideslip gain of 0.005 rad per m/s^2,
+    WHEN it is generated,
+    THEN the course departs from the yaw by more than 0.5 deg while moving, and the
+    strapdown replay still matches the attitude to 1e-9 rad."""
     sc = load_scenario("car480", overrides={"duration_s": 60.0,
                                             "trajectory.sideslip_gain_rad_per_mps2": 0.005})
     run = generate(sc, seed=1)
@@ -160,6 +184,10 @@ def test_sideslip_option_moves_course_off_yaw() -> None:
 
 
 def test_drive_long_has_stops_and_crawling() -> None:
+    """GIVEN the drive_long scenario,
+    WHEN it is generated,
+    THEN it lasts 1200 s, stops at least four separate times after the first 20 s,
+    and spends over 100 s crawling at 0.5-3 m/s."""
     run = generate(load_scenario("drive_long"), seed=1)
     t = run.truth_t_us * 1e-6
     speed = np.linalg.norm(run.truth_vel_n, axis=1)
@@ -173,6 +201,11 @@ def test_drive_long_has_stops_and_crawling() -> None:
 
 
 def test_multirotor_tilt_and_course() -> None:
+    """GIVEN the multirotor scenario,
+    WHEN it is generated,
+    THEN the body z axis follows the thrust (acceleration, drag, gravity) within 0.05 deg,
+    it hovers level for 14 s then tilts past 8 deg, and flies sideways (course 90 deg off
+    yaw) at 72-84 s and backwards (180 deg) at 102-114 s."""
     run = generate(load_scenario("multirotor"), seed=1)
     sc = run.scenario
     t = run.truth_t_us * 1e-6
@@ -196,6 +229,11 @@ def test_multirotor_tilt_and_course() -> None:
 
 
 def test_ship_modulation_and_dov() -> None:
+    """GIVEN ship_dov for 2400 s,
+    WHEN it is generated,
+    THEN the heading dwells at 0 then 180 deg of modulation turned at 18 deg/s, the ship is
+    still for 600 s then cruises at 10 m/s towards 45 deg, and both DOV components are
+    20 arcsec sinusoids with a 10 h period."""
     sc = load_scenario("ship_dov", overrides={"duration_s": 2400.0})
     run = generate(sc, seed=1)
     t = run.truth_t_us * 1e-6
@@ -224,6 +262,9 @@ def test_ship_modulation_and_dov() -> None:
 
 
 def test_modulation_angle_is_continuous() -> None:
+    """GIVEN a modulation spec at 18 deg/s with 5 s dwells and 1 s ramps,
+    WHEN the modulation angle is sampled every 1 ms for 60 s,
+    THEN it stays within 0-180 deg and never steps faster than 18 deg/s."""
     m = ModulationSpec(enabled=True, rate_rps=18.0 * D2R, dwell_s=5.0, ramp_s=1.0)
     t = np.arange(0.0, 60.0, 1e-3)
     a = modulation_angle(t, m)
@@ -233,6 +274,10 @@ def test_modulation_angle_is_continuous() -> None:
 
 
 def test_duration_scale_and_truncation_keep_the_prefix() -> None:
+    """GIVEN car480 for 40 s, and car480 for 80 s scaled by 0.25, with the same seed,
+    WHEN both are generated,
+    THEN the scaled run has 2000 IMU steps and its increments (true and noisy), truth
+    positions and GNSS velocities equal the start of the 40 s run."""
     long = generate(load_scenario("car480", overrides={"duration_s": 40.0}), seed=5)
     short = generate(load_scenario("car480", overrides={"duration_s": 80.0,
                                                         "duration_scale": 0.25}), seed=5)
