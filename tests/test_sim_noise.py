@@ -29,6 +29,10 @@ def static() -> SimRun:
 
 
 def test_white_noise_density(static: SimRun) -> None:
+    """GIVEN 1000 s at rest from the seed-001 MEMS grade,
+    WHEN the bias is removed from the increment errors and their spread is measured,
+    THEN the noise densities and the Allan deviation at 1 s match the spec's ARW and VRW
+    (0.24 deg/sqrt(h), 0.3 m/s/sqrt(s)) within 3 % and 10 %."""
     spec = static.scenario.imu
     dt = static.imu_dt_s
     err = static.imu_inc - static.imu_inc_true
@@ -47,6 +51,10 @@ def test_white_noise_density(static: SimRun) -> None:
 
 
 def test_constant_bias_recovered(static: SimRun) -> None:
+    """GIVEN 1000 s at rest with MEMS biases and white noise,
+    WHEN the increment errors are averaged,
+    THEN the mean rates equal the drawn gyro and accel biases within 5 sigma of the averaged
+    noise, and the drawn biases are on the scale of the spec, not zero."""
     spec = static.scenario.imu
     dt = static.imu_dt_s
     t_total = static.imu_inc.shape[0] * dt
@@ -61,6 +69,9 @@ def test_constant_bias_recovered(static: SimRun) -> None:
 
 
 def test_bias_draws_follow_sigma() -> None:
+    """GIVEN 300 short static runs with seeds 0-299,
+    WHEN their drawn gyro and accel biases are pooled,
+    THEN their spread matches the spec's bias sigmas within 10 % and the gyro mean is near 0."""
     sc = load_scenario("static", overrides={"duration_s": 0.05, "gnss.rate_hz": 100.0})
     g = np.array([generate(sc, seed=s).gyro_bias_rps for s in range(300)]).ravel()
     a = np.array([generate(sc, seed=s).accel_bias_mps2 for s in range(300)]).ravel()
@@ -70,6 +81,11 @@ def test_bias_draws_follow_sigma() -> None:
 
 
 def test_gauss_markov_variance_and_correlation() -> None:
+    """GIVEN a 20000 s static run at 10 Hz with only first-order Gauss-Markov errors
+    (gyro 1e-4 rad/s, accel 2e-3 m/s^2, tau 5 s),
+    WHEN the rate errors are examined,
+    THEN the gyro error is the reported GM state, the variances are sigma^2 within 10 %, and
+    the correlation is exp(-1) at lag tau and exp(-dt/tau) at one step."""
     tau = 5.0
     sc = load_scenario("static", overrides={
         "duration_s": 20000.0, "imu.rate_hz": 10.0, "imu.arw_rad_per_sqrt_s": 0.0,
@@ -92,6 +108,9 @@ def test_gauss_markov_variance_and_correlation() -> None:
 
 
 def test_scale_factor_applied() -> None:
+    """GIVEN 60 s of car480 with only scale factor errors (gyro 1000 ppm, accel 500 ppm sigma),
+    WHEN each noisy increment is divided by the true one,
+    THEN the median ratio per axis is 1 + the drawn scale factor, which is not zero."""
     sc = load_scenario("car480", overrides={
         "duration_s": 60.0, "imu.arw_rad_per_sqrt_s": 0.0, "imu.vrw_mps_per_sqrt_s": 0.0,
         "imu.gyro_bias_sigma_rps": 0.0, "imu.accel_bias_sigma_mps2": 0.0,
@@ -107,6 +126,10 @@ def test_scale_factor_applied() -> None:
 
 
 def test_seed_reproducible_and_distinct() -> None:
+    """GIVEN 30 s of car480 with GNSS jumps, generated twice with seed 7 and once with seed 8,
+    WHEN the runs are compared,
+    THEN the seed-7 runs are identical in IMU and GNSS, the seed-8 run differs in both,
+    and the true increments are the same for every seed."""
     sc = load_scenario("car480", overrides={"duration_s": 30.0,
                                             "gnss.jumps.enabled": True,
                                             "gnss.jumps.start_s": 0.0})
@@ -122,6 +145,11 @@ def test_seed_reproducible_and_distinct() -> None:
 
 
 def test_grades_match_the_seeds() -> None:
+    """GIVEN the built-in IMU grades,
+    WHEN their figures are read,
+    THEN mems_seed001 has 12 deg/h and 5 mg bias sigmas, mems_seed001_h differs only in VRW
+    read as 0.3 m/s/sqrt(h) (used by pol_static), and ship_dov's grade has 0.003 deg/h
+    and 1e-4 m/s^2."""
     deg_h = math.pi / 180.0 / 3600.0
     mems = GRADES["mems_seed001"]
     assert mems["gyro_bias_sigma_rps"] == pytest.approx(12.0 * deg_h)
