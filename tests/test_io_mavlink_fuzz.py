@@ -65,6 +65,10 @@ VALID = _valid_frames()
 @FAST
 @given(st.binary(max_size=700))
 def test_random_bytes_never_raise(data: bytes) -> None:
+    """GIVEN random bytes (up to 700),
+    WHEN they are fed to a decoder as a stream and as a datagram,
+    THEN it never raises and every sample it returns is sane (finite, within the limits,
+    GNSS in range with a 3D fix and positive accuracies)."""
     dec = MavlinkDecoder(CFG)
     _sane(dec.feed(data, 0))
     _sane(dec.feed_datagram(data, 0))
@@ -73,6 +77,10 @@ def test_random_bytes_never_raise(data: bytes) -> None:
 @FAST
 @given(st.lists(st.binary(min_size=1, max_size=80), min_size=1, max_size=12))
 def test_random_stream_chunks_with_markers(chunks: list[bytes]) -> None:
+    """GIVEN up to 12 random chunks, each fed after a MAVLink 2 and a MAVLink 1 start marker
+    so the parser gets past the prefix scan,
+    WHEN they are fed to one decoder as a stream,
+    THEN it never raises and every sample it returns is sane."""
     # Bias toward the start markers so the parser goes past the prefix scan.
     dec = MavlinkDecoder(CFG)
     for c in chunks:
@@ -83,6 +91,9 @@ def test_random_stream_chunks_with_markers(chunks: list[bytes]) -> None:
 @FAST
 @given(st.sampled_from(VALID), st.integers(min_value=0, max_value=300))
 def test_truncated_frames_are_counted_not_decoded(frame: bytes, cut: int) -> None:
+    """GIVEN a valid frame (GNSS, IMU or heartbeat) cut anywhere before its last byte,
+    WHEN the cut frame is fed as a datagram,
+    THEN nothing is decoded and, unless empty, it is counted as truncated or bad prefix."""
     cut = min(cut, len(frame) - 1)
     dec = MavlinkDecoder(CFG)
     assert dec.feed_datagram(frame[:cut], 0) == []
@@ -99,6 +110,10 @@ def test_truncated_frames_are_counted_not_decoded(frame: bytes, cut: int) -> Non
 def test_single_byte_corruption_never_yields_a_wrong_sample(
     frame: bytes, pos: int, xor: int
 ) -> None:
+    """GIVEN a valid frame with one byte after the start marker XOR-ed with a non-zero value,
+    WHEN it is fed as a datagram,
+    THEN either nothing comes out (and something is counted) or exactly what the clean frame
+    gives: a corrupted frame never yields a different sample."""
     pos = pos % (len(frame) - 1) + 1  # keep the start marker
     bad = bytearray(frame)
     bad[pos] ^= xor
@@ -115,6 +130,9 @@ def test_single_byte_corruption_never_yields_a_wrong_sample(
 @FAST
 @given(st.binary(max_size=300), st.binary(max_size=300))
 def test_good_frame_survives_surrounding_junk(junk1: bytes, junk2: bytes) -> None:
+    """GIVEN a GPS_INPUT frame with random junk before and after it in one datagram,
+    WHEN the datagram is fed,
+    THEN every sample returned is sane and the good fix is among them."""
     frame = MavlinkTx().gps_input(GOOD)
     dec = MavlinkDecoder(CFG)
     out = dec.feed_datagram(junk1 + frame + junk2, 0)
@@ -138,6 +156,10 @@ def _f32_bits(x: float) -> float:
     )
 )
 def test_highres_imu_hostile_values(vals: list[float]) -> None:
+    """GIVEN a HIGHRES_IMU with arbitrary float32 accel and gyro values (NaN, inf, huge),
+    WHEN it is decoded,
+    THEN a sane sample comes out exactly when all values are finite and within the accel and
+    gyro limits; otherwise one non-finite / absurd-accel / absurd-gyro rejection is counted."""
     enc = mav.MAVLink(None, 1, 1)
     ax, ay, az, gx, gy, gz = vals
     dec = MavlinkDecoder(CFG)
@@ -162,6 +184,11 @@ def test_highres_imu_hostile_values(vals: list[float]) -> None:
     st.integers(min_value=0, max_value=9),
 )
 def test_gps_input_hostile_values(lat: int, lon: int, alt: float, vn: float, fix: int) -> None:
+    """GIVEN a GPS_INPUT with arbitrary lat/lon integers, float32 altitude and north velocity
+    (NaN, inf included) and fix type 0-9,
+    WHEN it is decoded,
+    THEN a sample comes out only if it is sane, with a 3D fix and lat/lon in range;
+    otherwise a rejection is counted."""
     enc = mav.MAVLink(None, 1, 1)
     frame = enc.gps_input_encode(9, 0, 0, 0, 0, fix, lat, lon, alt, 1.0, 1.0, vn, 0.0, 0.0,
                                  0.3, 1.0, 2.0, 9)
