@@ -57,6 +57,12 @@ def _rows(path: Path) -> list[dict[str, str]]:
 
 @pytest.mark.parametrize("case", list(CASES))
 def test_detect_and_decode(case: str, src: Source, tmp_path: Path) -> None:
+    """GIVEN a 20 s simulated flight written as ULog (integrals or rates), DataFlash, tlog,
+    or an X8 directory or zip,
+    WHEN the format is detected and the log read,
+    THEN the format is named, nothing is damaged, IMU increments are the stored rates x 10 ms
+    (rate formats drop the first sample), fixes match to unit precision (X8: the documented
+    default accuracies), and the reference attitude matches to 1e-4 rad."""
     path = _write(case, src, tmp_path)
     fmt, rates = CASES[case][1], CASES[case][3]
     assert detect_format(path) == fmt
@@ -93,6 +99,10 @@ def test_detect_and_decode(case: str, src: Source, tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("case", list(CASES))
 def test_log_replay_equals_csv_replay(case: str, src: Source, tmp_path: Path) -> None:
+    """GIVEN each log format and its equivalent CSV (same IMU rates or increments, same fixes),
+    WHEN both are replayed with the heading taken from the GNSS course,
+    THEN the two solution files are identical, and over the second half the yaw stays
+    within 1 deg of the simulated truth written as the reference."""
     path = _write(case, src, tmp_path)
     data = read_log(path)
     # the equivalent CSV: the stored rates in rate form (the CSV reader integrates them
@@ -122,6 +132,11 @@ def test_log_replay_equals_csv_replay(case: str, src: Source, tmp_path: Path) ->
 
 def test_format_option_and_unknown_files(src: Source, tmp_path: Path,
                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN a DataFlash log and a file that is not a flight log,
+    WHEN they are read and replayed with and without --format,
+    THEN --format dataflash reads it, the junk file is an "unknown log format" (exit 2),
+    a wrong --format is refused with the reader's message (exit 2), and --log with --imu
+    is a usage error."""
     p = _write("dataflash", src, tmp_path)
     assert read_log(p, "dataflash").fmt == "dataflash"
     junk = tmp_path / "junk.dat"
@@ -139,7 +154,10 @@ def test_format_option_and_unknown_files(src: Source, tmp_path: Path,
 
 
 def test_tlog_gps_raw_int_on_unix_clock(src: Source, tmp_path: Path) -> None:
-    """ArduPilot stamps GPS_RAW_INT with Unix time: moved onto the IMU clock; no vel_d."""
+    """GIVEN a tlog whose GPS_RAW_INT is stamped with Unix time, as ArduPilot does,
+    WHEN it is read and replayed,
+    THEN a note says the fixes were on another clock and they are moved onto the IMU clock,
+    vel_d is NaN, vel_n matches to 2 cm/s, and the replay writes a solution."""
     p = tmp_path / "ap.tlog"
     write_tlog(p, src, "GPS_RAW_INT", gnss_unix_time=True)
     data = read_log(p)
@@ -153,7 +171,10 @@ def test_tlog_gps_raw_int_on_unix_clock(src: Source, tmp_path: Path) -> None:
     assert len(_rows(out)) > 500
 
 
-def test_ulog_options(src: Source, tmp_path: Path) -> None:
+def test_ulog_gnss_delay_option_moves_fixes_earlier(src: Source, tmp_path: Path) -> None:
+    """GIVEN a ULog of the simulated flight,
+    WHEN it is read with a GNSS delay option of 0.05 s,
+    THEN the first fix is stamped 50 ms earlier than it was logged."""
     p = _write("ulog", src, tmp_path)
     data = read_log(p, options=LogOptions(gnss_delay_s=0.05))
     assert data.gnss_t_us[0] == src.gnss[0].t_us - 50_000
