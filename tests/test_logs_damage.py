@@ -42,6 +42,11 @@ def _replay_and_report(log: Path, tmp: Path, capsys: pytest.CaptureFixture[str])
 @pytest.mark.parametrize("fmt", list(BINARY))
 def test_truncated_binary_log(fmt: str, src: Source, tmp_path: Path,
                               capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN a ULog, DataFlash or tlog cut in the middle of the record 60 % of the way in,
+    WHEN it is read and replayed,
+    THEN the damage is at that record's byte offset, "cut short", 50-70 % of the IMU samples
+    are read, the part before replays and renders a report, and stderr says
+    "damaged at byte <offset>" and "read up to there"."""
     name, writer = BINARY[fmt]
     p = tmp_path / name
     offsets = writer(p, src)
@@ -68,6 +73,11 @@ def _rewrite(d: Path, name: str, data: bytes) -> Path:
 @pytest.mark.parametrize("fmt", list(BINARY))
 def test_corrupt_binary_log(fmt: str, src: Source, tmp_path: Path,
                             capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN a ULog, DataFlash or tlog whose middle record is corrupt (ULog: unknown message
+    type; DataFlash: lost header; tlog: a payload byte that fails the CRC),
+    WHEN it is read and replayed,
+    THEN the damage is at that record's byte offset, the part before replays and renders a
+    report, and stderr says "damaged at byte <offset>: <reason>; read up to there"."""
     name, writer = BINARY[fmt]
     p = tmp_path / name
     offsets = writer(p, src)
@@ -89,6 +99,11 @@ def test_corrupt_binary_log(fmt: str, src: Source, tmp_path: Path,
 
 
 def test_damaged_x8_text(src: Source, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN an X8 IMU.txt with a non-numeric field in line 1201 and cut mid line 1500,
+    WHEN it is read and replayed,
+    THEN the damage is "not a number" at IMU.txt line 1201, 1199 IMU samples are read, GNSS
+    and reference stop at the last good IMU time and stderr names the line;
+    with line 1201 repaired, the damage is the short line 1500 (too few columns)."""
     from fixtures.logwriters import write_x8
 
     d = tmp_path / "x8"
@@ -116,6 +131,9 @@ def test_damaged_x8_text(src: Source, tmp_path: Path, capsys: pytest.CaptureFixt
 
 
 def test_unreadable_starts_are_clear_errors(tmp_path: Path) -> None:
+    """GIVEN a ULog shorter than its 16-byte header and a zip with a truncated local header,
+    WHEN each is read,
+    THEN LogFormatError is raised naming the 16-byte header and the zip respectively."""
     p = tmp_path / "short.ulg"
     p.write_bytes(b"ULog\x01\x12\x35\x01")
     with pytest.raises(LogFormatError, match="16-byte header"):
