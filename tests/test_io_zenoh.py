@@ -41,6 +41,10 @@ def solution(**kw: object) -> NavSolution:
 
 
 def test_config_is_peer_without_multicast_scouting() -> None:
+    """GIVEN a Zenoh config for vehicle car1 listening on one TCP endpoint,
+    WHEN it is turned into a zenoh config, and configs with vehicle names "a/b", "x*", "" are made,
+    THEN the session is a peer with multicast scouting off listening on that endpoint,
+    and the bad vehicle names raise ValueError."""
     c = ZenohConfig(vehicle="car1", listen=("tcp/127.0.0.1:1",)).to_zenoh()
     assert json.loads(c.get_json("mode")) == "peer"
     assert json.loads(c.get_json("scouting/multicast/enabled")) is False
@@ -51,6 +55,10 @@ def test_config_is_peer_without_multicast_scouting() -> None:
 
 
 def test_attitude_payload_fields_and_nan_as_null() -> None:
+    """GIVEN a solution whose attitude sigmas are NaN, 0 and inf,
+    WHEN its attitude payload is built,
+    THEN it carries the schema version, time, quaternion, Euler angles in degrees and the
+    aligned flag, the non-finite sigmas are null, and it serialises as strict JSON."""
     p = attitude_payload(solution(att_sd_rad=(math.nan, 0.0, math.inf)))
     assert p["schema"] == SCHEMA_VERSION and p["t_us"] == 42_000_123
     assert p["quat_wxyz"] == pytest.approx([0.9238795, 0.0, 0.0, 0.3826834])
@@ -60,6 +68,11 @@ def test_attitude_payload_fields_and_nan_as_null() -> None:
 
 
 def test_publish_and_receive_over_loopback() -> None:
+    """GIVEN a publisher session listening on loopback and a subscriber connected to it,
+    WHEN attitude and a status (with its own schema 99 and a NaN) are published until both
+    arrive,
+    THEN the subscriber gets the attitude fields, and the status with schema set to 1 and
+    the NaN as null, with nothing counted as wrong encoding or bad JSON."""
     async def main() -> None:
         port = free_port()
         vehicle = f"v{port}"
@@ -93,6 +106,9 @@ def test_publish_and_receive_over_loopback() -> None:
 
 
 def test_subscriber_counts_non_json() -> None:
+    """GIVEN a subscriber connected to a raw zenoh session,
+    WHEN that session puts a text/plain payload and a payload labelled JSON that is not JSON,
+    THEN the subscriber counts wrong_encoding and bad_json and queues nothing."""
     async def main() -> None:
         port = free_port()
         cfg_l = ZenohConfig(vehicle="x", listen=(f"tcp/127.0.0.1:{port}",))
