@@ -89,10 +89,9 @@ def _attitude_listener(port: int, got: list[tuple[float, Any]], stop: threading.
 
 
 def test_daemon_survives_fuzz_and_counts_it(tmp_path: Path) -> None:
-    """GIVEN navd running with an allowlist, fed a 30 s drive over MAVLink UDP with, from 3 s,
-    hostile datagrams after every real frame (random bytes, truncated, corrupted, NaN/Inf,
-    > 50 g, ~1000 km GNSS jumps, a stranger source),
-    WHEN it is stopped with SIGTERM,
+    """GIVEN navd with an allowlist fed a 30 s drive over MAVLink UDP, from 3 s with hostile
+    datagrams after every real frame (junk, truncated, corrupted, NaN/Inf, > 50 g, ~1000 km
+    GNSS jumps, a stranger source), WHEN it is stopped with SIGTERM,
     THEN it exits 0; attitude kept coming, finite, with heading RMS < 1 deg; every refusal
     reason is counted, the real stream got through, and fewer than 60 warnings are logged."""
     run = car_run(DURATION_S)
