@@ -61,6 +61,11 @@ def _write(path: Path, rec: Any) -> Path:
 
 def test_snapshot_saves_what_the_drive_learned_and_the_next_start_uses_it(tmp_path: Path
                                                                            ) -> None:
+    """GIVEN an estimator after a 300 s car drive,
+    WHEN a snapshot is taken with a too-strict sigma limit, then a loose one, saved, and
+    applied at the next start,
+    THEN the strict one saves nothing; the file is written without leftovers, loaded as the
+    IMU biases with sigma = learned (+) repeatability, and the gyro bias is nearer truth."""
     est, run = learned()
     strict = _store(path=str(tmp_path / "b.json"), max_accel_sd_mg=0.01)
     assert bias_store.snapshot(est, strict, NOW) is None  # not yet known that well
@@ -84,6 +89,9 @@ def test_snapshot_saves_what_the_drive_learned_and_the_next_start_uses_it(tmp_pa
 
 
 def test_a_loaded_file_never_raises_the_configured_prior(tmp_path: Path) -> None:
+    """GIVEN a stored accel bias sigma of 3 mg and a configured prior of 1 mg,
+    WHEN the store is applied,
+    THEN the file is loaded with its biases but the prior sigma stays 1 mg."""
     s = _store(path=str(_write(tmp_path / "b.json", _record(
         accel_bias_sd_mg=[3.0, 3.0, 3.0]))))
     tables, state = _apply({"imu": {"accel_bias_sd_mg": 1.0}}, s, NOW)
@@ -107,6 +115,10 @@ def test_a_loaded_file_never_raises_the_configured_prior(tmp_path: Path) -> None
 ])
 def test_bad_files_are_refused_with_the_cause_and_change_nothing(
         tmp_path: Path, content: Any, why: str) -> None:
+    """GIVEN a bias file that is unreadable, of another schema or IMU, too old, from the
+    future, or with a bad, non-finite, short, non-positive or implausible value,
+    WHEN the store is applied,
+    THEN it is refused with the cause in the state and the config tables are returned as is."""
     s = _store(path=str(_write(tmp_path / "b.json", content)))
     tables = {"imu": {"accel_bias_sd_mg": 5.0}}
     out, state = _apply(tables, s, NOW)
@@ -115,6 +127,9 @@ def test_bad_files_are_refused_with_the_cause_and_change_nothing(
 
 
 def test_off_and_absent() -> None:
+    """GIVEN a store with no path, or a path to a file that does not exist,
+    WHEN the store is applied,
+    THEN the config is unchanged and the state is "off", resp. "none yet: <path>"."""
     assert _apply({}, _store(), NOW) == ({}, "off")
     out, state = _apply({}, _store(path="/nonexistent/b.json"), NOW)
     assert out == {} and state == "none yet: /nonexistent/b.json"
@@ -128,6 +143,11 @@ def _daemon(tmp_path: Path, *extra: str) -> Daemon:
 
 
 def test_daemon_loads_saves_and_records_the_biases_it_started_with(tmp_path: Path) -> None:
+    """GIVEN a daemon with an empty bias store,
+    WHEN it saves before learning, a daemon with a driven estimator saves, and a third starts
+    and records,
+    THEN nothing is written at first, then the file is saved now; the third daemon loads those
+    biases and its recording header carries them."""
     d = _daemon(tmp_path)
     assert d.status()["bias_store"].startswith("none yet")
     est, _ = learned()
@@ -160,6 +180,9 @@ async def _open_close(d: Daemon) -> None:
 
 def test_unwritable_store_is_warned_not_fatal(tmp_path: Path,
                                               caplog: pytest.LogCaptureFixture) -> None:
+    """GIVEN a daemon with learned biases and a store path in a directory that does not exist,
+    WHEN it saves the biases,
+    THEN the save fails and "cannot save learned IMU biases" is logged, without raising."""
     d = _daemon(tmp_path, f'bias_store.path="{tmp_path / "missing-dir" / "b.json"}"',
                 "bias_store.max_accel_sd_mg=10.0", "bias_store.max_gyro_sd_deg_per_h=20.0")
     d.est, _ = learned()

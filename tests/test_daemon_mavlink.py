@@ -145,6 +145,10 @@ def observed(tmp_path_factory: pytest.TempPathFactory) -> Any:
 
 
 def test_ready_first_then_stopping_on_sigterm_and_clean_exit(observed: Observed) -> None:
+    """GIVEN one daemon life cycle (a 40 s car run streamed over MAVLink, a stall, SIGTERM),
+    WHEN the messages on its NOTIFY_SOCKET and its exit are observed,
+    THEN READY=1 comes first, STATUS= lines follow, STOPPING=1 is sent once after SIGTERM,
+    and the daemon exits 0 logging "stopped (SIGTERM)"."""
     n = observed.notify
     assert n is not None
     assert "READY=1" in n.messages[0][1], n.messages[:3]
@@ -157,6 +161,10 @@ def test_ready_first_then_stopping_on_sigterm_and_clean_exit(observed: Observed)
 
 def test_watchdog_every_half_interval_while_data_flows_and_none_when_stalled(
         observed: Observed) -> None:
+    """GIVEN one daemon life cycle (a 40 s car run streamed over MAVLink, a stall, SIGTERM),
+    WHEN its WATCHDOG=1 pings are timed against the data (WatchdogSec 1 s),
+    THEN a ping comes at least every half interval while attitude flows, none after the
+    last half interval of data, and the withholding is logged."""
     n = observed.notify
     assert n is not None
     pings = n.times("WATCHDOG=1")
@@ -176,6 +184,10 @@ def test_watchdog_every_half_interval_while_data_flows_and_none_when_stalled(
 
 
 def test_zenoh_attitude_tracks_truth(observed: Observed) -> None:
+    """GIVEN one daemon life cycle (a 40 s car run streamed over MAVLink, a stall, SIGTERM),
+    WHEN a Zenoh subscriber reads its attitude messages,
+    THEN ~50 Hz of sensor time arrives; from 5 s on all are aligned, finite, and the
+    heading error against truth has RMS < 0.5 deg and max < 2 deg."""
     att = observed.attitude()
     expected = DURATION_S * 50  # 50 Hz of sensor time
     assert len(att) > 0.9 * expected, len(att)
@@ -189,6 +201,10 @@ def test_zenoh_attitude_tracks_truth(observed: Observed) -> None:
 
 
 def test_pymavlink_client_receives_attitude(observed: Observed) -> None:
+    """GIVEN one daemon life cycle (a 40 s car run streamed over MAVLink, a stall, SIGTERM),
+    WHEN a stock pymavlink client listens on the send address,
+    THEN it gets ~50 Hz ATTITUDE with as many ATTITUDE_QUATERNION, a 1 Hz HEARTBEAT, all
+    from (1, 191); from 5 s the yaw error is RMS < 0.5, max < 2 deg; both yaws agree."""
     msgs = observed.mavlink
     by_type: dict[str, list[tuple[float, str, int, int, dict[str, Any]]]] = {}
     for m in msgs:
@@ -212,6 +228,10 @@ def test_pymavlink_client_receives_attitude(observed: Observed) -> None:
 
 
 def test_status_reports_counters_queue_and_latency(observed: Observed) -> None:
+    """GIVEN one daemon life cycle (a 40 s car run streamed over MAVLink, a stall, SIGTERM),
+    WHEN its Zenoh status messages and final stats are read,
+    THEN every IMU datagram was received and used, nothing was dropped, output latency
+    is counted per publish with p99 < 50 ms, and state goes navigating, stalled, stopping."""
     statuses = observed.statuses()
     assert len(statuses) >= 5
     final = observed.final_stats()
@@ -233,6 +253,11 @@ def test_status_reports_counters_queue_and_latency(observed: Observed) -> None:
 
 
 def test_recording_replays_bit_exactly_to_the_published_attitude(observed: Observed) -> None:
+    """GIVEN one daemon life cycle (a 40 s car run streamed over MAVLink, a stall, SIGTERM),
+    recorded with --record,
+    WHEN the recording is replayed through a fresh estimator,
+    THEN it is not truncated, yields as many outputs as were published on Zenoh, and each
+    published attitude message equals the replayed one bit for bit."""
     assert observed.recording is not None
     rec = RecordingReader(observed.recording)
     assert rec.truncated_bytes == 0
@@ -248,6 +273,10 @@ def test_recording_replays_bit_exactly_to_the_published_attitude(observed: Obser
 
 
 def test_logs_are_few_lines(observed: Observed) -> None:
+    """GIVEN one daemon life cycle (a 40 s car run streamed over MAVLink, a stall, SIGTERM),
+    WHEN its log is read,
+    THEN it has fewer than 20 lines and the only warnings are the withheld watchdog and
+    the input stop."""
     lines = observed.log.splitlines()
     warnings = [ln for ln in lines if " WARNING " in ln]
     assert all("withholding WATCHDOG=1" in ln or "input stopped" in ln
@@ -256,8 +285,11 @@ def test_logs_are_few_lines(observed: Observed) -> None:
 
 
 def test_input_stop_is_logged_at_once(observed: Observed) -> None:
-    """The stream ended STALL_WAIT_S (2.6 s) before SIGTERM: the stop is logged before the
-    daemon stops, not in the periodic line up to log_period_s (60 s) later (issue 16 item 8)."""
+    """GIVEN one daemon life cycle (a 40 s car run streamed over MAVLink, a stall, SIGTERM),
+    with the stream ending 2.6 s before SIGTERM,
+    WHEN its log is read,
+    THEN "input stopped ... no sensor data for" is logged once, before the SIGTERM stop,
+    not in the periodic line up to log_period_s (60 s) later (issue 16 item 8)."""
     lines = observed.log.splitlines()
     stopped = [i for i, ln in enumerate(lines) if "input stopped" in ln]
     stopping = next(i for i, ln in enumerate(lines) if "stopping (SIGTERM)" in ln)
@@ -266,6 +298,10 @@ def test_input_stop_is_logged_at_once(observed: Observed) -> None:
 
 
 def test_ready_line_says_where_output_goes(observed: Observed) -> None:
+    """GIVEN one daemon life cycle (a 40 s car run streamed over MAVLink, a stall, SIGTERM),
+    WHEN its "ready:" log line is read,
+    THEN it names the MAVLink output (ATTITUDE 50 Hz + HEARTBEAT and the address) and the
+    Zenoh attitude and status keys at 50 Hz with the listen endpoint."""
     ready = next(ln for ln in observed.log.splitlines() if " ready: " in ln)
     assert "mavlink ATTITUDE 50 Hz + HEARTBEAT -> udpout:127.0.0.1:" in ready, ready
     assert re.search(r"zenoh navd/hil\d+/attitude 50 Hz \+ navd/hil\d+/status "
@@ -273,8 +309,11 @@ def test_ready_line_says_where_output_goes(observed: Observed) -> None:
 
 
 def test_zenoh_aligned_means_a_usable_heading(observed: Observed) -> None:
-    """A first course starts the heading with sigma 10 deg: that is initialised, not aligned
-    (issue 16 item 8); aligned needs the yaw sigma within [init] aligned_sd_deg (2)."""
+    """GIVEN one daemon life cycle (a 40 s car run streamed over MAVLink, a stall, SIGTERM),
+    WHEN its Zenoh attitude messages are read,
+    THEN the first is heading_initialised but not aligned (yaw sigma from a first course
+    > 2 deg), and every aligned message has yaw sigma <= [init] aligned_sd_deg (2)
+    (issue 16 item 8)."""
     att = observed.attitude()
     assert att[0]["heading_initialised"] and not att[0]["aligned"], att[0]
     assert att[0]["sigma_deg"][2] > 2.0

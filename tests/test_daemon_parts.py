@@ -43,6 +43,9 @@ def test_built_in_defaults_stay_on_loopback() -> None:
 
 
 def test_shipped_config_documents_every_daemon_key_with_the_defaults() -> None:
+    """GIVEN the shipped config/navd.toml,
+    WHEN its daemon sections are parsed and compared with the built-in defaults,
+    THEN every section equals the default and lists exactly the section's keys."""
     doc = tomllib.loads((ROOT / "config" / "navd.toml").read_text())
     c = DaemonConfig.from_dict(doc)
     d = DaemonConfig.from_dict({})
@@ -67,12 +70,20 @@ def test_shipped_config_documents_every_daemon_key_with_the_defaults() -> None:
     ("filter.mode=sideways", "[filter] mode"),  # the estimator's sections are checked too
 ])
 def test_errors_name_section_key_and_unit(override: str, message: str) -> None:
+    """GIVEN one bad config override (bad value, wrong type, unknown key or section,
+    bad address, no input enabled, a bad estimator value),
+    WHEN the daemon config is built from it,
+    THEN ConfigError names the section, the key and what was expected."""
     with pytest.raises(ConfigError) as e:
         DaemonConfig.from_dict(load_config(None, [override]))
     assert message in str(e.value)
 
 
 def test_sections_build_adapter_configs() -> None:
+    """GIVEN MAVLink and Zenoh config sections (imu_id -1, nominal rate 0, an allow list),
+    WHEN the adapter configs are built from them,
+    THEN -1 and 0 become None, the allow list a set, Zenoh keeps vehicle and no
+    multicast scouting; the default queue holds at least 16 samples."""
     m = mavlink_input_config(MavlinkSection(allow=((1, 1),), imu_id=-1, nominal_imu_rate=0.0,
                                             max_imu_gap=0.05))
     assert m.allow == frozenset({(1, 1)}) and m.imu_id is None
@@ -92,6 +103,10 @@ def _recv(sock: socket.socket) -> str:
 
 @pytest.mark.parametrize("abstract", [False, True])
 def test_sd_notify_path_and_abstract_sockets(tmp_path: Path, abstract: bool) -> None:
+    """GIVEN NOTIFY_SOCKET naming a path socket or an abstract (@) socket,
+    WHEN the notifier sends ready, watchdog, a two-line status and stopping,
+    THEN the socket receives READY=1 with STATUS, WATCHDOG=1, a one-line STATUS and
+    STOPPING=1."""
     server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     if abstract:
         name = f"navd-test-{os.getpid()}"
@@ -114,12 +129,18 @@ def test_sd_notify_path_and_abstract_sockets(tmp_path: Path, abstract: bool) -> 
 
 
 def test_sd_notify_without_socket_is_a_no_op_and_never_raises(tmp_path: Path) -> None:
+    """GIVEN no NOTIFY_SOCKET, or one naming a socket that does not exist,
+    WHEN a notification is sent,
+    THEN it returns False without raising, and the failed send is counted."""
     assert not SdNotifier({}).notify("READY=1")
     gone = SdNotifier({"NOTIFY_SOCKET": str(tmp_path / "missing")})
     assert gone.enabled and not gone.watchdog() and gone.errors == 1
 
 
 def test_watchdog_interval_respects_watchdog_pid() -> None:
+    """GIVEN WATCHDOG_USEC absent, zero, set, or set with WATCHDOG_PID,
+    WHEN the watchdog interval is read,
+    THEN it is None, None, the value in seconds, and the value only when the PID is ours."""
     assert watchdog_interval_s({}) is None
     assert watchdog_interval_s({"WATCHDOG_USEC": "0"}) is None
     assert watchdog_interval_s({"WATCHDOG_USEC": "4000000"}) == 4.0
@@ -136,6 +157,10 @@ def _imu(t_us: int) -> ImuSample:
 
 
 def test_queue_drops_the_oldest_and_counts(caplog: pytest.LogCaptureFixture) -> None:
+    """GIVEN a sample queue of 16 that is sent 40 samples, then closed and sent one more,
+    WHEN it is drained,
+    THEN the 24 oldest were dropped and counted, the newest 15 come out in order,
+    the sample after close is ignored and "queue full" is logged once."""
     async def go() -> list[int]:
         q = SampleQueue(16, RateLimitedLog(logging.getLogger("t"), 60.0))
         for k in range(40):
@@ -156,6 +181,10 @@ def test_queue_drops_the_oldest_and_counts(caplog: pytest.LogCaptureFixture) -> 
 
 
 def test_output_schedule_on_sensor_time() -> None:
+    """GIVEN a 50 Hz output schedule,
+    WHEN samples arrive every 10 ms, or at irregular times,
+    THEN output is due on each 20 ms boundary of sensor time, or on the first sample
+    at or past it; a rate of 0 is refused."""
     s = OutputSchedule(50.0)
     due = [t for t in range(0, 100_001, 10_000) if s.due(t)]
     assert due == [0, 20_000, 40_000, 60_000, 80_000, 100_000]
@@ -169,6 +198,10 @@ def test_output_schedule_on_sensor_time() -> None:
 
 
 def test_latency_stats_window_and_percentiles() -> None:
+    """GIVEN latency statistics with a window of 100 and latencies of 1..250 us,
+    WHEN the summary is taken,
+    THEN it counts all 250 and takes p50, p99 and max over the last 100 only;
+    with no data it reports n = 0."""
     st = LatencyStats(window=100)
     assert st.summary() == {"n": 0}
     for k in range(1, 251):
@@ -182,6 +215,10 @@ def test_latency_stats_window_and_percentiles() -> None:
 
 
 def test_recording_round_trip_is_exact(tmp_path: Path) -> None:
+    """GIVEN IMU, GNSS and polarization samples with NaN, inf, -0.0 and missing ECEF,
+    WHEN they are written to a recording and read back,
+    THEN config, output rate and every sample come back exactly; a recording cut short
+    ends one sample early without raising and reports the truncated bytes."""
     samples = [
         _imu(1000),
         ImuSample(2000, 1000, 1e-300, -0.0, math.nan, math.inf, 0.1 + 0.2, -1.5e-7),
@@ -211,6 +248,9 @@ def test_recording_round_trip_is_exact(tmp_path: Path) -> None:
 
 
 def test_recording_refuses_an_unrepresentable_sample_and_stays_valid(tmp_path: Path) -> None:
+    """GIVEN a recording being written,
+    WHEN samples whose time does not fit the record format are written between valid ones,
+    THEN each is refused with RecordingError and the file still reads back the valid ones."""
     from navd.io.recording import RecordingError
 
     path = tmp_path / "r.navdrec"
@@ -227,7 +267,10 @@ def test_recording_refuses_an_unrepresentable_sample_and_stays_valid(tmp_path: P
 
 
 def test_daemon_survives_a_recording_it_cannot_write(caplog: pytest.LogCaptureFixture) -> None:
-    """Disk full (/dev/full) or an unrecordable sample: counted, logged, navigation goes on."""
+    """GIVEN a daemon recording to /dev/full (disk full),
+    WHEN it records an unpackable sample and then samples until the write fails,
+    THEN both errors are counted, the unpackable one is skipped, the full disk stops the
+    recording with the reason in status and a warning, and navigation goes on."""
     from navd.config.daemon import load_daemon_config
     from navd.daemon.daemon import Daemon
 
@@ -248,7 +291,10 @@ def test_daemon_survives_a_recording_it_cannot_write(caplog: pytest.LogCaptureFi
     d._close()
 
 
-def test_not_a_recording(tmp_path: Path) -> None:
+def test_reader_refuses_a_file_that_is_not_a_recording(tmp_path: Path) -> None:
+    """GIVEN a file that is a CSV, not a recording,
+    WHEN a RecordingReader opens it,
+    THEN RecordingError is raised."""
     from navd.io.recording import RecordingError
 
     p = tmp_path / "x"
@@ -261,6 +307,10 @@ def test_not_a_recording(tmp_path: Path) -> None:
 
 
 def test_stream_sends_gnss_at_arrival_with_time_of_validity() -> None:
+    """GIVEN a 3 s car run with 50 ms GNSS latency,
+    WHEN the simulator's stream is timed and encoded as MAVLink,
+    THEN events are in time order, each fix is sent 50 ms after its time of validity and
+    decodes to that time; UDP targets without a host are refused."""
     run = car_run(3.0, **{"gnss.latency_s": 0.05})
     events = list(timed_samples(run))
     times = [t for t, _ in events]
@@ -278,6 +328,10 @@ def test_stream_sends_gnss_at_arrival_with_time_of_validity() -> None:
 
 
 def test_polarization_readings_stream_over_mavlink_into_the_estimator() -> None:
+    """GIVEN a 20 s pol_moving run streamed as MAVLink,
+    WHEN it is decoded with polarization off, then on, and pushed into the estimator,
+    THEN off: the private message is only counted as unknown; on: every reading arrives
+    as sent and most are fused."""
     from firmware_sim import generate, load_scenario
     from navd.io.mavlink import MavlinkInputConfig
     from navd.pipeline import build_estimator
@@ -301,7 +355,9 @@ def test_polarization_readings_stream_over_mavlink_into_the_estimator() -> None:
 
 
 def test_polarization_readings_over_dronecan_into_the_estimator() -> None:
-    """The DroneCAN carrier: navd's private SkyPolarization message, same readings."""
+    """GIVEN a 20 s pol_moving run streamed as DroneCAN (navd's private SkyPolarization),
+    WHEN the frames are decoded and pushed into the estimator,
+    THEN every reading arrives as sent, is counted pol_ok, and most are fused."""
     from firmware_sim import generate, load_scenario
     from firmware_sim.stream import dronecan_events
     from navd.io.dronecan import DronecanConfig, DronecanDecoder
@@ -332,8 +388,10 @@ def _push_and_compare(est: Any, decoded: Iterable[Any], ref: list[PolSample]) ->
 
 
 def test_a_clean_static_run_raises_no_refusal_warnings() -> None:
-    """Counters of normal work (the heading hold at rest among them) must not be logged as
-    refused input; a vehicle parked for a minute is not a fault."""
+    """GIVEN a clean 60 s static run (the vehicle parked),
+    WHEN the estimator processes it,
+    THEN the heading hold is active and no counter counts as a refusal: normal work,
+    the heading hold at rest among it, must not be logged as refused input."""
     from firmware_sim import generate, load_scenario
     from navd.config import EstimatorConfig
     from navd.core.estimator import Estimator

@@ -30,6 +30,9 @@ def drive() -> list[Sample]:
 
 
 def test_schedule_starts_over_with_the_estimator() -> None:
+    """GIVEN a 50 Hz output schedule that has output at sensor time 400 s,
+    WHEN the sensor clock restarts near 0, first in the old epoch, then in epoch 1,
+    THEN nothing is due in the old epoch; in the new one output is due every 20 ms again."""
     s = OutputSchedule(50.0)
     assert s.due(400_000_000) and not s.due(400_010_000)
     # the sensor rebooted: its clock starts again near 0, far below the next multiple
@@ -38,6 +41,10 @@ def test_schedule_starts_over_with_the_estimator() -> None:
 
 
 def test_replay_after_a_clock_restart_outputs_as_a_fresh_start(drive: list[Sample]) -> None:
+    """GIVEN a 20 s car drive replayed twice back to back (the sensor clock restarts),
+    WHEN the estimator's solutions are taken at 50 Hz,
+    THEN it restarts once (reinit_time_jump); the first half equals a fresh run and the
+    second starts within ~1 s of the new clock and ends where the fresh run ends."""
     fresh = [sol.t_us for sol in solutions(build_estimator(load_config(None, [])), drive, 50.0)]
     est = build_estimator(load_config(None, []))
     both = [sol.t_us for sol in solutions(est, drive + drive, 50.0)]
@@ -54,8 +61,11 @@ def test_replay_after_a_clock_restart_outputs_as_a_fresh_start(drive: list[Sampl
 def test_daemon_resumes_output_and_reports_the_restart(
         drive: list[Sample], monkeypatch: pytest.MonkeyPatch,
         caplog: pytest.LogCaptureFixture) -> None:
-    """Two streams in (simulated) real time: the host clock advances with the sensor clock, a
-    heartbeat samples the MAVLink state every 0.1 s."""
+    """GIVEN a daemon fed the drive twice in simulated real time (the host clock advances
+    with the sensor clock, the MAVLink state sampled every 0.1 s),
+    WHEN its estimate loop runs through the restart,
+    THEN output resumes within ~1 s of the new clock, status, status line and one warning
+    report reinit_time_jump, and HEARTBEAT is ACTIVE only within 1 s of an output."""
     cfg = load_daemon_config(None, ["zenoh.enabled=false", "daemon.warm_up=false"])
     d = Daemon(cfg, handle_signals=False)
     out: list[tuple[int, float]] = []  # (sensor t_us, host time) of every published solution
@@ -112,6 +122,9 @@ def test_daemon_resumes_output_and_reports_the_restart(
 
 def test_heartbeat_is_not_active_while_navigating_without_output(
         monkeypatch: pytest.MonkeyPatch) -> None:
+    """GIVEN a daemon whose estimator is navigating but whose last output was 3 s ago,
+    WHEN its state and MAVLink state are read, then again after an output,
+    THEN it is "navigating, no output" and not ACTIVE, then "navigating" and ACTIVE."""
     cfg = load_daemon_config(None, ["zenoh.enabled=false", "daemon.warm_up=false"])
     d = Daemon(cfg, handle_signals=False)
     d.sinks = [CallbackSink(lambda sol: None, 50.0)]

@@ -24,6 +24,10 @@ def _directives() -> dict[str, list[str]]:
 
 
 def test_unit_has_the_service_contract() -> None:
+    """GIVEN the shipped systemd/navd.service,
+    WHEN its directives are read,
+    THEN it is a notify service with a watchdog, restart on failure, a dynamic unprivileged
+    sandboxed user, the expected ExecStart, address families and numba cache directory."""
     d = _directives()
     want = {
         "Type": "notify", "NotifyAccess": "main", "Restart": "on-failure",
@@ -44,6 +48,10 @@ def test_unit_has_the_service_contract() -> None:
 @pytest.mark.skipif(shutil.which("systemd-analyze") is None,
                     reason="systemd-analyze not installed (apt-get install systemd)")
 def test_systemd_analyze_verify_prints_nothing(tmp_path: Path) -> None:
+    """GIVEN the unit with ExecStart pointed at this environment's navd (skipped without
+    systemd-analyze or a navd entry point),
+    WHEN `systemd-analyze verify` checks it,
+    THEN it succeeds and prints nothing."""
     # ExecStart must name an existing executable for verify; point it at this venv's navd
     navd = Path(sys.executable).with_name("navd")
     if not navd.exists():

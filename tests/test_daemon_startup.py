@@ -22,6 +22,10 @@ def _run_until_exit(tmp_path: Path, sections: dict[str, dict[str, object]],
 
 
 def test_mavlink_port_in_use_names_the_key_and_the_fix(tmp_path: Path) -> None:
+    """GIVEN a MAVLink listen port already bound by another socket,
+    WHEN navd starts,
+    THEN it exits 1 with a "startup failed" line naming [mavlink] listen, the port,
+    "in use" and the --set mavlink.listen= fix."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as busy:
         busy.bind(("127.0.0.1", 0))
         port = busy.getsockname()[1]
@@ -35,6 +39,10 @@ def test_mavlink_port_in_use_names_the_key_and_the_fix(tmp_path: Path) -> None:
 
 
 def test_zenoh_port_in_use_names_the_key_without_rust_paths(tmp_path: Path) -> None:
+    """GIVEN a Zenoh listen port already taken by another listening socket,
+    WHEN navd starts,
+    THEN it exits 1 with a "startup failed" line naming [zenoh] listen and the
+    --set zenoh.listen= fix, and the log holds no Rust source paths."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as busy:
         busy.bind(("127.0.0.1", 0))
         busy.listen()
@@ -50,6 +58,10 @@ def test_zenoh_port_in_use_names_the_key_without_rust_paths(tmp_path: Path) -> N
 
 
 def test_record_into_a_missing_directory_is_one_clear_line(tmp_path: Path) -> None:
+    """GIVEN --record pointing into a directory that does not exist,
+    WHEN navd starts,
+    THEN it exits 1 with a "startup failed" line naming --record and asking whether the
+    directory exists, and no traceback."""
     rc, text = _run_until_exit(tmp_path, {
         "mavlink": {"listen": f"udpin:127.0.0.1:{free_port()}", "send": ""},
         "zenoh": {"enabled": False}}, ("--record", str(tmp_path / "nowhere" / "r.navdrec")))

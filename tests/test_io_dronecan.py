@@ -87,6 +87,9 @@ def through_bus(msgs: list[can.Message]) -> list[can.Message]:
 
 
 def test_raw_imu_integrated_round_trip_over_virtual_bus() -> None:
+    """GIVEN an IMU sample encoded by the simulator as integrated RawIMU frames (extended IDs),
+    WHEN they pass through a python-can virtual bus and the decoder,
+    THEN exactly one ImuSample comes out with the same times and deltas (rel 1e-6)."""
     s = imu()
     frames = DronecanTx(node_id=21).raw_imu(s)
     assert len(frames) > 1 and all(m.is_extended_id for m in frames)
@@ -98,6 +101,10 @@ def test_raw_imu_integrated_round_trip_over_virtual_bus() -> None:
 
 
 def test_raw_imu_point_samples_use_timestamps_and_float16() -> None:
+    """GIVEN four IMU samples 2.5 ms apart sent as point (non-integrated) RawIMU,
+    WHEN the decoder reads them,
+    THEN the first only primes the decoder (counted) and the other three come out
+    with their timestamps, dt 2500 us and float16 rates accurate to ~1e-3."""
     tx, dec = DronecanTx(node_id=21), DronecanDecoder(virtual_cfg())
     samples = [imu(t_us=3_000_000 + 2500 * i) for i in range(4)]
     out = feed(dec, (m for s in samples for m in tx.raw_imu(s, integrated=False)))
@@ -112,6 +119,10 @@ def test_raw_imu_point_samples_use_timestamps_and_float16() -> None:
 
 @pytest.mark.parametrize("with_ecef", [False, True])
 def test_fix2_round_trip(with_ecef: bool) -> None:
+    """GIVEN an RTK-float fix sent as Fix2, with and without the ECEF fields,
+    WHEN it passes through a virtual bus and the decoder,
+    THEN time, fix type, position (ellipsoid height), velocity and accuracies survive,
+    and ECEF position/velocity are present exactly when they were sent."""
     g = fix()
     frames = DronecanTx(node_id=30).fix2(g, with_ecef=with_ecef, geoid_sep_m=47.0)
     (got,) = feed(DronecanDecoder(virtual_cfg()), through_bus(frames))
@@ -133,6 +144,10 @@ def test_fix2_round_trip(with_ecef: bool) -> None:
 
 
 def test_fix2_covariance_forms() -> None:
+    """GIVEN Fix2 messages with a full 6x6, an empty, and a NaN-horizontal covariance,
+    WHEN they are decoded with configured default accuracies,
+    THEN sigmas come from the covariance and defaults fill the missing parts;
+    a covariance that saturates float16 drops the fix and counts it."""
     tx = DronecanTx(node_id=30)
     full = [0.0] * 36
     for i, v in enumerate((4.0, 4.0, 9.0, 0.04, 0.04, 0.04)):
@@ -154,6 +169,10 @@ def test_fix2_covariance_forms() -> None:
 
 
 def test_fix2_rejections() -> None:
+    """GIVEN Fix2 messages with a 2D fix, no timestamp, or a NaN velocity,
+    WHEN they are decoded,
+    THEN each is dropped and counted under its own reason; with use_receive_time
+    a fix without timestamp is kept and stamped with the receive time."""
     tx = DronecanTx(node_id=30)
     dec = DronecanDecoder(virtual_cfg())
     assert feed(dec, tx.fix2(fix(fix_type=FixType.FIX_2D))) == []
@@ -168,6 +187,9 @@ def test_fix2_rejections() -> None:
 
 
 def test_raw_imu_absurd_and_nan_rejected() -> None:
+    """GIVEN RawIMU samples with a 60 g accel, an absurd gyro delta, or a NaN,
+    WHEN they are decoded,
+    THEN none is emitted and each counter (absurd accel, absurd gyro, nonfinite) is 1."""
     tx, dec = DronecanTx(node_id=21), DronecanDecoder(virtual_cfg())
     dt = 0.0025
     assert feed(dec, tx.raw_imu(ImuSample(10, 2500, 0, 0, 0, 0, 0, -60 * 9.81 * dt))) == []
@@ -178,6 +200,9 @@ def test_raw_imu_absurd_and_nan_rejected() -> None:
 
 
 def test_interleaved_transfers_from_two_nodes_and_two_types() -> None:
+    """GIVEN RawIMU and Fix2 transfers from two nodes, their frames interleaved on one bus,
+    WHEN the decoder reassembles them,
+    THEN all four samples come out."""
     a, b = DronecanTx(node_id=10), DronecanTx(node_id=11)
     streams = [a.raw_imu(imu(t_us=100)), b.raw_imu(imu(t_us=200)), a.fix2(fix(t_us=300)),
                b.fix2(fix(t_us=400), with_ecef=True)]
@@ -193,6 +218,11 @@ def _mangle_tail(m: can.Message, tail: int) -> can.Message:
 
 
 def test_bad_tail_bytes() -> None:
+    """GIVEN a multi-frame RawIMU transfer with a corrupted tail byte: toggle set on the
+    start frame, a transfer ID change mid-transfer, or no end-of-transfer flag,
+    WHEN it is decoded,
+    THEN nothing is emitted and the matching counter rises; the unfinished transfer
+    stays pending until evict_stale removes and counts it."""
     frames = DronecanTx(node_id=21).raw_imu(imu())
     first_tail = frames[0].data[-1]
     # Start frame with toggle set: the transfer never starts; the rest are orphans.
@@ -214,6 +244,9 @@ def test_bad_tail_bytes() -> None:
 
 
 def test_bad_crc() -> None:
+    """GIVEN a RawIMU transfer with one payload bit flipped in a middle frame,
+    WHEN it is decoded,
+    THEN nothing is emitted and bad_crc is counted once."""
     frames = DronecanTx(node_id=21).raw_imu(imu())
     data = bytearray(frames[3].data)
     data[2] ^= 0x10
@@ -225,6 +258,10 @@ def test_bad_crc() -> None:
 
 
 def test_dropped_middle_frames() -> None:
+    """GIVEN a RawIMU transfer missing one middle frame, then one missing two,
+    WHEN each is decoded,
+    THEN nothing is emitted (toggle error, resp. CRC error counted),
+    and the next intact transfer from the same node decodes."""
     frames = DronecanTx(node_id=21).raw_imu(imu())
     dec = DronecanDecoder(virtual_cfg())
     assert feed(dec, frames[:3] + frames[4:]) == []  # one lost: toggle breaks
@@ -238,6 +275,9 @@ def test_dropped_middle_frames() -> None:
 
 
 def test_duplicated_frame_is_ignored_not_fatal() -> None:
+    """GIVEN a RawIMU transfer in which one frame arrives twice,
+    WHEN it is decoded,
+    THEN the sample is still emitted once and the duplicate counts as one bad toggle."""
     frames = DronecanTx(node_id=21).raw_imu(imu())
     dec = DronecanDecoder(virtual_cfg())
     out = feed(dec, [*frames[:3], frames[2], *frames[3:]])
@@ -245,6 +285,9 @@ def test_duplicated_frame_is_ignored_not_fatal() -> None:
 
 
 def test_transfer_received_twice_is_not_integrated_twice() -> None:
+    """GIVEN every RawIMU and Fix2 transfer delivered twice (redundant CAN interfaces),
+    WHEN they are decoded,
+    THEN one ImuSample and one GnssSample come out and each repeat is counted."""
     # Redundant CAN interfaces deliver every transfer twice.
     tx = DronecanTx(node_id=21)
     imu_frames, fix_frames = tx.raw_imu(imu()), tx.fix2(fix())
@@ -255,6 +298,9 @@ def test_transfer_received_twice_is_not_integrated_twice() -> None:
 
 
 def test_stale_partial_transfer_is_evicted_on_next_frame() -> None:
+    """GIVEN a partial RawIMU transfer left pending, with a 0.1 s transfer timeout,
+    WHEN a Fix2 transfer arrives 0.2 s after the partial one began,
+    THEN the fix decodes, the partial transfer is evicted and counted as stale."""
     tx = DronecanTx(node_id=21)
     first = tx.raw_imu(imu())
     dec = DronecanDecoder(virtual_cfg(transfer_timeout_s=0.1))
@@ -266,6 +312,10 @@ def test_stale_partial_transfer_is_evicted_on_next_frame() -> None:
 
 
 def test_other_frames_are_ignored_and_counted() -> None:
+    """GIVEN a NodeStatus, a service frame, an anonymous frame, a standard-ID frame
+    and an empty frame,
+    WHEN they are decoded,
+    THEN nothing is emitted and each is counted once under its own reason."""
     dec = DronecanDecoder(virtual_cfg())
     node_status = can.Message(arbitration_id=(16 << 24) | (341 << 8) | 21,
                               data=b"\x00" * 7 + b"\xc0", is_extended_id=True)
@@ -280,6 +330,9 @@ def test_other_frames_are_ignored_and_counted() -> None:
 
 
 def test_allow_nodes() -> None:
+    """GIVEN a decoder that allows only node 5,
+    WHEN Fix2 arrives from node 6 and then from node 5,
+    THEN node 6 is dropped and counted as not allowed, node 5 decodes."""
     dec = DronecanDecoder(virtual_cfg(allow_nodes=frozenset({5})))
     assert feed(dec, DronecanTx(node_id=6).fix2(fix())) == []
     assert dec.counters["not_allowed"] >= 1
@@ -287,6 +340,10 @@ def test_allow_nodes() -> None:
 
 
 def test_encode_solution_quaternion_order_and_tail_bytes() -> None:
+    """GIVEN a NavSolution with a known quaternion, rates and attitude sigmas,
+    WHEN the encoder turns it into ahrs.Solution frames,
+    THEN they carry DTID 1000 and node 77, pass the dronecan CRC, hold the quaternion
+    as x, y, z, w with matching rates and variances, and the transfer ID wraps mod 32."""
     sol = NavSolution(
         t_us=55, quat_nb=(0.5, -0.5, 0.5, 0.5), roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0,
         lat_rad=0.0, lon_rad=0.0, alt_m=0.0, vel_n=(0.0, 0.0, 0.0), att_sd_rad=(0.01, 0.02, 0.1),
@@ -317,6 +374,9 @@ _DTIDS = st.sampled_from([1003, 1063, 1000, 341])
 @given(st.lists(st.tuples(_DTIDS, st.integers(0, 127), st.binary(max_size=8), st.booleans()),
                 max_size=40))
 def test_random_frames_never_raise(frames: list[tuple[int, int, bytes, bool]]) -> None:
+    """GIVEN random frames (any known DTID, node, payload, extended or not),
+    WHEN they are fed to the decoder,
+    THEN it never raises and yields only ImuSample or GnssSample."""
     dec = DronecanDecoder(virtual_cfg())
     for i, (dtid, node, data, ext) in enumerate(frames):
         cid = (16 << 24) | (dtid << 8) | node if ext else node
@@ -327,6 +387,9 @@ def test_random_frames_never_raise(frames: list[tuple[int, int, bytes, bool]]) -
 @_FUZZ
 @given(st.integers(0, 200), st.integers(1, 255), st.booleans())
 def test_corrupted_transfer_never_yields_a_wrong_sample(pos: int, xor: int, gnss: bool) -> None:
+    """GIVEN a RawIMU or Fix2 transfer with one byte XOR-corrupted anywhere,
+    WHEN it is decoded,
+    THEN the output is either nothing or exactly the clean transfer's samples."""
     tx = DronecanTx(node_id=9)
     frames = tx.fix2(fix(), with_ecef=True) if gnss else tx.raw_imu(imu())
     clean = feed(DronecanDecoder(virtual_cfg()), frames)
@@ -342,6 +405,10 @@ def test_corrupted_transfer_never_yields_a_wrong_sample(pos: int, xor: int, gnss
 
 
 def test_link_delivers_on_the_event_loop() -> None:
+    """GIVEN an open DronecanLink and a simulator bus on the same virtual channel,
+    WHEN the simulator sends RawIMU and Fix2 and the link sends Solution frames,
+    THEN the IMU and GNSS samples reach the callback on the event loop thread,
+    and the simulator receives the Solution frames byte for byte."""
     async def main() -> None:
         cfg = virtual_cfg()
         got: list[Sample] = []
@@ -378,6 +445,9 @@ def test_link_delivers_on_the_event_loop() -> None:
 
 @pytest.mark.skipif(not os.path.exists("/sys/class/net/vcan0"), reason="no vcan0 interface")
 def test_socketcan_vcan0_round_trip() -> None:
+    """GIVEN a vcan0 interface (skipped otherwise),
+    WHEN a RawIMU transfer is sent over SocketCAN and decoded,
+    THEN exactly one sample with the sent timestamp comes out."""
     cfg = DronecanConfig(interface="socketcan", channel="vcan0")
     rx = open_bus(cfg)
     tx = can.Bus(interface="socketcan", channel="vcan0")
@@ -398,6 +468,9 @@ def test_socketcan_vcan0_round_trip() -> None:
 
 
 def test_dsdl_ids_match_the_spec() -> None:
+    """GIVEN the dronecan package's DSDL definitions,
+    WHEN the default DTIDs of RawIMU, Fix2 and Solution are read,
+    THEN they are 1003, 1063 and 1000."""
     assert dronecan.uavcan.equipment.ahrs.RawIMU.default_dtid == 1003
     assert dronecan.uavcan.equipment.gnss.Fix2.default_dtid == 1063
     assert dronecan.uavcan.equipment.ahrs.Solution.default_dtid == 1000
@@ -418,8 +491,10 @@ _f16 = st.floats(-32768.0, 32768.0, width=16, allow_subnormal=False)
 def test_raw_imu_unpacker_agrees_with_the_dronecan_codec(
         usec: int, interval: float, g_latest: list[float], g_int: list[float],
         a_latest: list[float], a_int: list[float], cov: list[float], tid: int) -> None:
-    """navd unpacks RawIMU itself (speed); the codec is the independent reference: same
-    frames in, same fields out, covariance tail of any length, any transfer ID."""
+    """GIVEN any RawIMU message (any fields, covariance tail of any length, any transfer
+    ID) encoded into frames; navd unpacks RawIMU itself for speed,
+    WHEN navd reassembles them and the dronecan codec decodes the same frames,
+    THEN navd yields one transfer with no counters and the same fields as the codec."""
     m = dronecan.uavcan.equipment.ahrs.RawIMU()
     m.timestamp.usec = usec
     m.integration_interval = interval
@@ -465,6 +540,9 @@ def _pol(t_us: int = 5_000_000, aop: float = 1.25, dop: float = 0.42) -> PolSamp
 
 
 def test_pol_type_signature_and_frames_match_the_dronecan_codec() -> None:
+    """GIVEN the dronecan codec's parse of navd's SkyPolarization .uavcan file,
+    WHEN its DTID, signature and size are read and a reading is encoded by both sides,
+    THEN they match navd's constants (24 bytes) and the frames are identical."""
     t = _codec_pol_type()
     assert t.default_dtid == POL_DTID
     assert t.get_data_type_signature() == POL_SIGNATURE
@@ -482,6 +560,11 @@ def test_pol_type_signature_and_frames_match_the_dronecan_codec() -> None:
 
 
 def test_pol_readings_decode_and_bad_ones_are_counted() -> None:
+    """GIVEN a valid polarization reading, its repeat, five bad readings
+    (NaN/out-of-range AoP, DoP > 1, no UTC, no timestamp) and a CRC-corrupted one,
+    WHEN they are decoded,
+    THEN only the valid one becomes a PolSample (values kept) and each bad one is
+    dropped and counted under its reason."""
     tx = DronecanTx(node_id=33)
     dec = DronecanDecoder(virtual_cfg())
     s = _pol()
@@ -510,8 +593,10 @@ def test_pol_readings_decode_and_bad_ones_are_counted() -> None:
     assert feed(dec, frames) == [] and dec.counters["bad_crc"] == 1
 
 
-def test_pol_readings_reach_the_estimator_over_a_virtual_bus() -> None:
-    """Frames of a simulated polarization node through python-can's virtual bus."""
+def test_pol_readings_decode_in_order_over_a_virtual_bus() -> None:
+    """GIVEN a simulated polarization node sending five readings on a virtual bus,
+    WHEN navd's bus receives them and the decoder reads them,
+    THEN all five come out in order with their timestamps."""
     cfg = virtual_cfg()
     tx_bus = can.Bus(interface="virtual", channel=cfg.channel)
     rx_bus = open_bus(cfg)

@@ -37,6 +37,10 @@ def generated(tmp_path_factory: pytest.TempPathFactory) -> ModuleType:
 
 
 def test_dialect_constants_match_the_xml() -> None:
+    """GIVEN the shipped dialect XML parsed by pymavlink,
+    WHEN its one message is read,
+    THEN name, ID, CRC extra and field order match navd's constants and the ID clashes with
+    no dialect pymavlink ships."""
     xml = mavparse.MAVXML(str(DIALECT_XML), "2.0")
     (msg,) = xml.message
     assert (msg.name, msg.id, msg.crc_extra) == ("NAVD_SKY_POLARIZATION", MSG_ID, CRC_EXTRA)
@@ -52,6 +56,10 @@ def test_dialect_constants_match_the_xml() -> None:
 ])
 def test_encoder_is_byte_identical_to_mavgen(generated: ModuleType,
                                              args: tuple[int, int, float, float, int]) -> None:
+    """GIVEN pymavlink's generator run on the dialect XML (the reference) and a family of
+    field values, including all-zero trailing fields (MAVLink 2 truncation),
+    WHEN the firmware_sim encoder and the generated code pack the same message,
+    THEN the frames are byte-identical and both parsers read them back."""
     mav = generated.MAVLink(None, srcSystem=1, srcComponent=158)
     seq = mav.seq
     ref = generated.MAVLink_navd_sky_polarization_message(*args).pack(mav)
@@ -65,6 +73,10 @@ def test_encoder_is_byte_identical_to_mavgen(generated: ModuleType,
 
 
 def test_round_trip_and_gps_time() -> None:
+    """GIVEN a polarization reading with a UTC time in 2020,
+    WHEN it is encoded twice and decoded,
+    THEN the sequence number counts 0, 1, the values come back, and the wire time is GPS
+    time: UTC + 18 s."""
     enc = PolMavlinkEncoder()
     s = PolSample(t_us=12_345_678, aop_rad=2.5, dop=0.42, utc_unix_s=UTC0 + 0.25)
     frame = enc.encode(s)
@@ -83,7 +95,10 @@ def test_round_trip_and_gps_time() -> None:
 
 
 def test_ardupilotmega_parser_hands_over_the_frame_as_unknown() -> None:
-    """How the MAVLink adapter finds our frames: msgid UNKNOWN, whole frame in ``m.data``."""
+    """GIVEN a polarization frame and the stock ardupilotmega parser (robust parsing),
+    WHEN the parser reads it,
+    THEN it yields msgid UNKNOWN with the whole frame in m.data (how the MAVLink adapter
+    finds our frames), which decodes to the reading, or to the receive time if asked."""
     frame = encode_mavlink(5_000_000, round(utc_to_gps_s(UTC0) * 1e6), 1.0, 0.6)
     mav = ardupilotmega.MAVLink(None)
     mav.robust_parsing = True
@@ -97,6 +112,10 @@ def test_ardupilotmega_parser_hands_over_the_frame_as_unknown() -> None:
 
 
 def test_bad_frames_and_values_are_refused_and_counted() -> None:
+    """GIVEN frames with a bad CRC or cut short, other messages, garbage, readings with a
+    bad AoP/DoP or missing times, and a payload of the wrong length,
+    WHEN they are decoded,
+    THEN none yields a sample; each bad one is counted under its reason, the heartbeat is not."""
     good = encode_mavlink(5, round(utc_to_gps_s(UTC0) * 1e6), 1.0, 0.6)
     c: dict[str, int] = {}
     corrupt = bytearray(good)
@@ -123,5 +142,8 @@ def test_bad_frames_and_values_are_refused_and_counted() -> None:
 
 
 def test_xml_is_shipped_next_to_the_decoder() -> None:
+    """GIVEN the installed navd.io.pol_wire module,
+    WHEN the dialect XML path is checked,
+    THEN the file exists in the module's own directory."""
     assert DIALECT_XML.is_file() and DIALECT_XML.parent == Path(
         __import__("navd.io.pol_wire", fromlist=["x"]).__file__).parent
