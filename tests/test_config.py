@@ -24,6 +24,10 @@ def _keys(cfg: EstimatorConfig) -> set[str]:
 
 
 def test_every_key_documented_and_file_matches_defaults() -> None:
+    """GIVEN the shipped config/navd.toml,
+    WHEN its keys are compared with every estimator config field (with its unit suffix) and the
+    file is loaded,
+    THEN every field is documented there and the file reproduces the built-in defaults."""
     doc = tomllib.loads((ROOT / "config" / "navd.toml").read_text())
     documented = {f"{s}.{k}" for s, t in doc.items() if isinstance(t, dict) for k in t}
     assert _keys(EstimatorConfig()) <= documented
@@ -32,6 +36,9 @@ def test_every_key_documented_and_file_matches_defaults() -> None:
 
 
 def test_units_are_converted_to_si() -> None:
+    """GIVEN overrides in deg/sqrt(h), mg, deg/s and ms,
+    WHEN the estimator config is built,
+    THEN the values are held in SI: rad/sqrt(s), m/s^2, rad/s and s."""
     c = EstimatorConfig.from_dict(load_config(None, [
         "imu.gyro_arw_deg_per_sqrt_h=0.24", "imu.accel_bias_sd_mg=5",
         "heading.max_yaw_rate_dps=20", "filter.cov_interval_ms=10"]))
@@ -48,14 +55,20 @@ def test_units_are_converted_to_si() -> None:
     ("imu.accel_bias_sd_mg=\"x\"", "number in mg"),
 ])
 def test_bad_values_name_key_and_unit(override: str, needle: str) -> None:
+    """GIVEN a key without its unit suffix, an unknown filter mode, a 2-element lever arm, or
+    a string where mg are expected,
+    WHEN the estimator config is built,
+    THEN a ConfigError names the key with its unit, or the expected value and its unit."""
     with pytest.raises(ConfigError) as exc:
         EstimatorConfig.from_dict(load_config(None, [override]))
     assert needle in str(exc.value)
 
 
 def test_every_shipped_key_loads_through_the_one_builder() -> None:
-    """Every section of config/navd.toml is a dataclass built by build_section, and every key
-    written there is one of its TOML keys (``<name>_<unit>`` or bare ``<name>``)."""
+    """GIVEN config/navd.toml as shipped,
+    WHEN each section is built by build_section and the whole file by DaemonConfig,
+    THEN its sections are exactly the known dataclasses, every key written there is one of its
+    TOML keys (``<name>_<unit>`` or bare ``<name>``), and every value type-checks and validates."""
     from navd.config import DovSection, PolarizationSection, build_section, toml_keys
     from navd.config.daemon import _SECTIONS, DaemonConfig
 
@@ -73,8 +86,11 @@ def test_every_shipped_key_loads_through_the_one_builder() -> None:
 @pytest.mark.parametrize("override", ["daemon.status_period=1", "filter.max_imu_gap=0.1",
                                       "mavlink.max_imu_gap=0.1", "dov.grdi=x"])
 def test_unknown_keys_give_one_style_of_error(override: str) -> None:
-    """A daemon key and an estimator key (here: the attribute name instead of the key) are
-    refused alike: section, key, and the valid keys with their units."""
+    """GIVEN an unknown key in [daemon], [filter], [mavlink] or [dov] (for the first three the
+    attribute name instead of the key),
+    WHEN the daemon config is built,
+    THEN each is refused alike: "[section] unknown key 'key'; expected one of: " and the valid
+    keys with their units."""
     from navd.config.daemon import DaemonConfig
 
     section, key = override.split("=")[0].split(".")

@@ -38,6 +38,11 @@ def scored(mode: str, yaw_err: float, seed: int = 1, jumps: bool = False,
 
 
 def test_completed_heading_converges_from_10_deg_and_beats_traditional() -> None:
+    """GIVEN car480 (seed 1) started with the heading 10 deg off,
+    WHEN it is run in completed mode and in traditional mode,
+    THEN completed's heading RMSE after 60 s and its final heading error are < 0.5 deg,
+    traditional's heading RMSE is > 5 times completed's (yaw poorly observable without the
+    course), and both keep roll/pitch RMSE < 1 deg and horizontal position RMSE < 5 m."""
     comp = scored("completed", 10.0)
     trad = scored("traditional", 10.0)
     rc, rt = comp.rmse(60.0), trad.rmse(60.0)
@@ -52,14 +57,19 @@ def test_completed_heading_converges_from_10_deg_and_beats_traditional() -> None
 
 @pytest.mark.parametrize("yaw_err", [90.0, -150.0])
 def test_heading_converges_from_large_initial_error(yaw_err: float) -> None:
+    """GIVEN car480 in completed mode started with the heading 90 or -150 deg off,
+    WHEN the drive is run,
+    THEN the heading RMSE after 120 s is < 0.5 deg and the heading is aligned at the end."""
     s = scored("completed", yaw_err)
     assert s.rmse(120.0)["heading_rmse_deg"] < 0.5
     assert bool(s.aligned[-1])
 
 
 def test_overconfident_wrong_heading_is_reset_by_course() -> None:
-    """Told heading is known to 1 deg while it is 90 deg off: the course gate keeps refusing,
-    and after ``reset_after`` refusals the yaw is reset to the course."""
+    """GIVEN car480 started with the heading 90 deg off but configured as known to 1 deg,
+    WHEN the drive is run (the course gate keeps refusing the courses),
+    THEN after ``reset_after`` refusals the yaw is reset to the course at least once and
+    the heading RMSE after 120 s is < 0.5 deg."""
     run = car(1)
     ov = initial_heading_config(run, 90.0)
     ov[-1] = "init.heading_sd_deg=1.0"
@@ -69,7 +79,10 @@ def test_overconfident_wrong_heading_is_reset_by_course() -> None:
 
 
 def test_filter_is_consistent_on_car480() -> None:
-    """NEES of velocity inside its chi-square band; attitude not over-confident."""
+    """GIVEN car480 in completed mode started with the heading 10 deg off,
+    WHEN the velocity and attitude NEES are averaged after 60 s (one independent sample per 2 s),
+    THEN the velocity NEES is inside its 99 % chi-square band, the attitude NEES is below the
+    band's upper edge (not over-confident) and every attitude sigma is finite."""
     s = scored("completed", 10.0)
     m = s.t_s >= 60.0
     # errors 0.1 s apart are strongly correlated; count one independent sample per 2 s
@@ -82,6 +95,10 @@ def test_filter_is_consistent_on_car480() -> None:
 
 
 def test_multirotor_never_uses_course_and_says_so() -> None:
+    """GIVEN a 120 s multirotor flight,
+    WHEN it is run with filter.profile=multirotor, then with filter.profile=ground,
+    THEN the multirotor profile neither accepts nor rejects a course, says "multirotor" in its
+    course_update status and still fuses velocities, while the ground profile uses courses."""
     run = generate(load_scenario("multirotor", {"duration_s": 120.0}), seed=2, progress=False)
     e = Estimator(cfg("filter.profile=multirotor", *initial_heading_config(run, 0.0)))
     s = score_run(run, e.cfg, est=e)
@@ -97,6 +114,11 @@ def test_multirotor_never_uses_course_and_says_so() -> None:
 
 
 def test_velocity_jump_bursts_are_rejected_and_counted() -> None:
+    """GIVEN car480 with GNSS velocity-jump bursts (at least 10 outlier epochs),
+    WHEN it is run in completed mode with filter.robust=gate and with filter.robust=none,
+    THEN the gate counts rejections for at least 80 % of the outliers and keeps the heading RMSE
+    within 2x (+0.05 deg) of the jump-free run, and without robustness the horizontal velocity
+    RMSE is worse than with the gate."""
     run = car(1, jumps=True)
     n_out = int(np.sum(run.gnss["outlier"]))
     assert n_out >= 10
@@ -112,6 +134,9 @@ def test_velocity_jump_bursts_are_rejected_and_counted() -> None:
 
 
 def test_steady_state_steps_do_not_allocate() -> None:
+    """GIVEN the estimator warmed up on car480 with the heading from config,
+    WHEN 10000 more IMU steps (with their GNSS fixes) run under tracemalloc,
+    THEN the peak allocation stays < 1024 bytes and < 256 bytes are still held afterwards."""
     run = car(1)
     e = Estimator(cfg("init.heading_source=config"))
     a = measure_steps(e, list(run.samples()), max_imu=10000)
@@ -126,6 +151,11 @@ def _finite(e: Estimator) -> bool:
 
 
 def test_bad_samples_are_counted_and_never_corrupt_the_state() -> None:
+    """GIVEN a 120 s car480 drive with NaN, duplicate, out-of-order and out-of-range IMU samples,
+    NaN GNSS fixes and 1000 km GNSS jumps injected at random,
+    WHEN every sample is pushed,
+    THEN the state and covariance stay finite after each push, each kind of bad sample is
+    counted exactly as often as it was injected, and the final heading error is < 1 deg."""
     run = generate(load_scenario("car480", {"duration_s": 120.0}), seed=3, progress=False)
     e = Estimator(cfg(*initial_heading_config(run, 0.0)))
     rng = np.random.default_rng(0)
@@ -196,6 +226,11 @@ def _arrival_order(run: SimRun, stamp_at_arrival: bool) -> list[ImuSample | Gnss
 
 
 def test_delayed_gnss_is_fused_at_its_time_of_validity() -> None:
+    """GIVEN car480 with 0.2 s GNSS latency, each fix pushed once the IMU clock passes its arrival,
+    WHEN fixes are stamped with their validity time, with their arrival time, or with their
+    arrival time and gnss.delay_ms=200,
+    THEN validity stamps are fused as delayed (> 4000, <= 3 too old) with position RMS < 1 m,
+    arrival stamps give > 2x that RMS, and arrival stamps with the delay set give < 1.1x it."""
     run = generate(load_scenario("car480", {"gnss.latency_s": 0.2, "gnss.pos_sigma_h_m": 1.0,
                                             "gnss.pos_sigma_v_m": 1.0}), seed=4, progress=False)
     results = {}
@@ -225,6 +260,10 @@ def test_delayed_gnss_is_fused_at_its_time_of_validity() -> None:
 
 
 def test_traditional_mode_aligns_from_first_course_and_flags_it() -> None:
+    """GIVEN car480 in traditional mode with init.heading_source=gnss_course,
+    WHEN the drive is run,
+    THEN the heading is aligned from a course exactly once (counted), is aligned at the end,
+    no course update is ever accepted, and the final heading error is < 10 deg."""
     run = car(1)
     e = Estimator(cfg("filter.mode=traditional", "init.heading_source=gnss_course"))
     s = score_run(run, e.cfg, est=e)
@@ -235,6 +274,10 @@ def test_traditional_mode_aligns_from_first_course_and_flags_it() -> None:
 
 
 def test_wild_fix_at_startup_or_from_the_future_does_not_poison_navigation() -> None:
+    """GIVEN a 60 s car480 drive,
+    WHEN with the first GNSS fix a fix 1000 km away and one stamped 10 s in the future arrive,
+    THEN the future fix and the start disagreement are counted, no absurd jump is counted,
+    more than 500 positions are accepted and the final position is within 10 m of the truth."""
     run = generate(load_scenario("car480", {"duration_s": 60.0}), seed=5, progress=False)
     e = Estimator(cfg(*initial_heading_config(run, 0.0)))
     first_gnss = True
@@ -258,7 +301,10 @@ def test_wild_fix_at_startup_or_from_the_future_does_not_poison_navigation() -> 
 
 
 def test_navigation_restarts_when_every_fix_disagrees() -> None:
-    """A state that is wrong by > 100 km (e.g. started from a bad fix) recovers."""
+    """GIVEN a 60 s car480 drive whose fixes in the first 5 s are shifted 1000 km north
+    (a state started from a bad fix),
+    WHEN the later, correct fixes all disagree with the state by > 100 km,
+    THEN navigation is reinitialised once and ends within 10 m of the truth."""
     run = generate(load_scenario("car480", {"duration_s": 60.0}), seed=6, progress=False)
     e = Estimator(cfg(*initial_heading_config(run, 0.0)))
     shift = 0.16  # 1000 km
@@ -274,8 +320,10 @@ def test_navigation_restarts_when_every_fix_disagrees() -> None:
 
 
 def test_known_accel_bias_is_removed_before_levelling_and_seeds_the_estimate() -> None:
-    """At rest an accelerometer bias is indistinguishable from tilt: only a known bias
-    (calibration, or one learned on an earlier run) gives the true tilt."""
+    """GIVEN 40 s at rest with a horizontal accelerometer bias > 15 mg (> 0.8 deg tilt if ignored),
+    WHEN the estimator levels with the true biases configured, or with only a 30 mg bias sigma,
+    THEN with the known bias the bias estimate starts within 0.5 mg of it and the final tilt error
+    is < 0.1 deg, while without it the tilt error is > 0.5 deg (at rest bias looks like tilt)."""
     run = generate(load_scenario("static", {
         "duration_s": 40.0, "imu.accel_bias_sigma_mps2": 0.3, "imu.vrw_mps_per_sqrt_s": 0.003,
         "imu.gyro_bias_sigma_rps": 1e-5}), seed=3, progress=False)
@@ -305,15 +353,19 @@ def test_known_accel_bias_is_removed_before_levelling_and_seeds_the_estimate() -
 
 @pytest.mark.parametrize("bad", ["[1.0, 2.0]", "[1.0, nan, 0.0]", "[1.0, inf, 0.0]", "3.0"])
 def test_known_bias_config_must_be_three_finite_numbers(bad: str) -> None:
+    """GIVEN an imu.accel_bias_mg of two numbers, with a NaN, with an infinity, or a scalar,
+    WHEN the estimator config is built from it,
+    THEN a ConfigError naming accel_bias_mg is raised."""
     with pytest.raises(ConfigError, match="accel_bias_mg"):
         cfg(f"imu.accel_bias_mg={bad}")
 
 
 def test_initial_heading_covariance_holds_at_high_pitch() -> None:
-    """A configured heading is the nose's azimuth; pitched 80 deg, the levelling tilt error
-    (the accelerometer bias) moves the rotation about the vertical by tan(80) = 5.7 times
-    itself.  The initial covariance must say so: NEES of phi_D near 1 over many starts,
-    where a heading-only variance would give about 10."""
+    """GIVEN 40 static starts pitched 80 deg with a configured heading (sigma 0.5 deg), where the
+    levelling tilt error moves the rotation about the vertical by tan(80) = 5.7 times itself,
+    WHEN the estimator initialises,
+    THEN the mean NEES of phi_D is within 0.4-2 (a heading-only variance would give about 10)
+    and the attitude covariance is positive definite."""
     rng = np.random.default_rng(7)
     nees = []
     for seed in range(40):
@@ -339,10 +391,11 @@ def test_initial_heading_covariance_holds_at_high_pitch() -> None:
 
 
 def test_heading_is_held_at_rest_without_a_heading_source() -> None:
-    """A MEMS IMU at rest cannot observe its heading, so the GNSS fixes must not move it
-    nor shrink its variance.  Without the hold the EKF does both (it relinearises the
-    gyro-bias coupling about a heading its own corrections keep moving): the heading sigma
-    falls from 10 to ~3.5 deg while the error wanders up to 25 deg."""
+    """GIVEN a MEMS IMU at rest for 30 min (4 seeds), heading configured 5 deg off, sigma 10 deg,
+    WHEN the GNSS fixes are fused with heading.hold_static on, then off,
+    THEN with the hold the heading is held on > 1700 epochs, its sigma stays > 8 deg and the error
+    within 3 sigma; without it the sigma falls below 6 deg and the mean squared normalised error
+    exceeds 3 (the EKF becomes overconfident about an unobservable heading)."""
     def run_all(hold: bool) -> list[tuple[float, float, int]]:
         out = []
         for seed in range(1, 5):
@@ -369,6 +422,10 @@ def test_heading_is_held_at_rest_without_a_heading_source() -> None:
 
 
 def test_heading_hold_is_off_for_a_gyro_that_can_gyrocompass() -> None:
+    """GIVEN a gyro bias sigma of 0.01 deg/h (can gyrocompass) or 12 deg/h (MEMS),
+    WHEN the estimator is built, with and without heading.hold_static=false,
+    THEN the static heading hold is off for the 0.01 deg/h gyro, on for the 12 deg/h gyro, and
+    off when the config disables it."""
     assert Estimator(cfg("imu.gyro_bias_sd_deg_per_h=0.01")).gnss.hold_enabled is False
     assert Estimator(cfg("imu.gyro_bias_sd_deg_per_h=12")).gnss.hold_enabled is True
     assert Estimator(cfg("imu.gyro_bias_sd_deg_per_h=12",

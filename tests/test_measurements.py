@@ -156,6 +156,11 @@ def antenna_position(true: dict, lever: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("lat_deg", LATS_DEG)
 def test_gnss_position_rows(lat_deg: float) -> None:
+    """GIVEN random states at latitudes 0 to +-78 deg with random lever arms, and the antenna
+    position measured by independent ECEF geometry,
+    WHEN navd fills the GNSS position row,
+    THEN the innovation is ~0 at the truth, R is diag(1.5^2, 1.5^2, 3^2), H matches central
+    differences (up to the dropped second-order dD/dp), and z = H dx for a finite error."""
     rng = np.random.default_rng(int(200 + lat_deg))
     for _ in range(3):
         true = random_state(rng, lat_deg)
@@ -178,6 +183,10 @@ def test_gnss_position_rows(lat_deg: float) -> None:
 
 
 def test_gnss_position_antimeridian_and_sign() -> None:
+    """GIVEN a state 2e-7 rad west of the antimeridian and a fix 4e-7 rad further east (across it),
+    WHEN the position innovation is computed,
+    THEN it is computed minus measured without wrapping: east component -4e-7 rad times the
+    east radius, north and down 0."""
     true = {"C": euler_mat(0.1, 0.2, 3.0), "v": np.zeros(3),
             "p": np.array([0.5, math.pi - 2e-7, 100.0]), "bg": np.zeros(3),
             "ba": np.zeros(3)}
@@ -206,6 +215,11 @@ def vel_innovation(hat: dict, w_true: np.ndarray, true_bg: np.ndarray, lever: np
 
 @pytest.mark.parametrize("lat_deg", LATS_DEG)
 def test_gnss_velocity_rows(lat_deg: float) -> None:
+    """GIVEN random states at latitudes 0 to +-78 deg, lever arms and body rates, and the antenna
+    velocity from the rigid-body model v + C (w x l),
+    WHEN navd fills the GNSS velocity row,
+    THEN the innovation is 0 at the truth, R is diag(0.04, 0.04, 0.16), H matches central
+    differences, and z = H dx for a finite error."""
     rng = np.random.default_rng(int(300 + lat_deg))
     for _ in range(3):
         true = random_state(rng, lat_deg)
@@ -245,6 +259,11 @@ def course_innovation(hat_c: np.ndarray, vn: float, ve: float, row: int = 0,
 
 @pytest.mark.parametrize("pitch_deg", [-30.0, -17.0, 0.0, 8.0, 22.0, 30.0])
 def test_course_row(pitch_deg: float) -> None:
+    """GIVEN attitudes pitched -30 to 30 deg at yaws around the circle, and a GNSS course within
+    0.05 rad of the heading (possibly straddling +-pi),
+    WHEN navd fills the course row,
+    THEN the innovation is heading minus course (wrapped), H matches central differences, and its
+    attitude part is the closed form of docs/design.md §4."""
     rng = np.random.default_rng(int(400 + pitch_deg))
     for yaw in [-3.1, -2.0, -0.4, 0.0, 1.1, 2.6, 3.1]:
         c = euler_mat(rng.uniform(-0.8, 0.8), math.radians(pitch_deg), yaw)
@@ -267,8 +286,10 @@ def test_course_row(pitch_deg: float) -> None:
 
 
 def test_course_row_lever_arm_terms() -> None:
-    """The course of v_gnss - C_hat (w_hat x l) depends on phi and dbg through the lever arm;
-    H must carry those terms (finite differences through the nonlinear innovation)."""
+    """GIVEN an antenna on a lever arm of a rotating vehicle, so the course of
+    v_gnss - C_hat (w_hat x l) depends on phi and on the gyro bias,
+    WHEN navd fills the course row,
+    THEN H matches finite differences through the nonlinear innovation, gyro-bias terms included."""
     rng = np.random.default_rng(77)
     for _ in range(6):
         c = euler_mat(rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), rng.uniform(-3, 3))
@@ -299,8 +320,11 @@ def test_course_row_lever_arm_terms() -> None:
 
 
 def test_course_noise_matches_velocity_noise_propagation() -> None:
-    """R of the joint (velocity, course) block = G R_v G^T + diag(0,0,0,sb^2), with G the
-    Jacobian of the two innovations with respect to the GNSS velocity noise (numerical)."""
+    """GIVEN random attitudes and velocities, a correlated GNSS velocity noise R_v and a sideslip
+    sigma sb,
+    WHEN the R of the joint (velocity, course) block and of a course-only row are filled,
+    THEN the joint R is G R_v G^T + diag(0, 0, 0, sb^2), G the numerical Jacobian of the
+    innovations in the velocity noise, and the course-only variance is sd_h^2 / v_h^2 + sb^2."""
     rng = np.random.default_rng(5)
     for _ in range(5):
         c = random_attitude(rng)
@@ -336,6 +360,9 @@ def test_course_noise_matches_velocity_noise_propagation() -> None:
 
 # ---------------------------------------------------------------- Euler error map
 def test_euler_error_map() -> None:
+    """GIVEN attitudes pitched -80 to 75 deg with random roll and yaw,
+    WHEN euler_error_map builds the map from the attitude error phi to the Euler-angle error,
+    THEN it equals central differences of the Euler angles of Exp(-phi) C."""
     rng = np.random.default_rng(6)
     M = np.zeros((3, 3))
     for pitch_deg in [-80.0, -60.0, -30.0, 0.0, 15.0, 45.0, 75.0]:
@@ -377,6 +404,11 @@ def run_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, z: np.ndarray, R: np
 
 @pytest.mark.parametrize("m", [1, 2, 3, 4])
 def test_gated_update_equals_textbook(m: int) -> None:
+    """GIVEN random covariances, 1- to 4-row measurements with correlated noise, and zero or
+    non-zero prior error states,
+    WHEN gated_update runs ungated, then with a gate just above the NIS,
+    THEN state and covariance equal the textbook Kalman update, P is exactly symmetric, the NIS
+    is z^T S^-1 z (zero prior), and the gated run accepts with the same result."""
     rng = np.random.default_rng(40 + m)
     for trial in range(6):
         P = random_spd(rng, 15, SCALE)
@@ -403,7 +435,11 @@ def test_gated_update_equals_textbook(m: int) -> None:
 
 @pytest.mark.parametrize("hold", [2, 9])
 def test_gated_update_with_a_held_state_is_the_schmidt_consider_update(hold: int) -> None:
-    """Zero gain for the held state, the Joseph form for the covariance (valid for any gain)."""
+    """GIVEN random covariances and 1-, 3- and 4-row measurements, with state 2 or 9 held,
+    WHEN gated_update runs with that state held,
+    THEN it is the Schmidt consider update (zero gain for the held state, the Joseph form for the
+    covariance, valid for any gain), the held value and variance are unchanged, and P stays
+    positive definite."""
     rng = np.random.default_rng(70 + hold)
     for m in (1, 3, 4):
         P = random_spd(rng, 15, SCALE)
@@ -431,6 +467,9 @@ def test_gated_update_with_a_held_state_is_the_schmidt_consider_update(hold: int
 
 
 def test_gated_update_rejection_leaves_state_untouched() -> None:
+    """GIVEN a 4-row measurement about 10 sigma out,
+    WHEN gated_update runs with the gate at half its NIS,
+    THEN it returns minus the NIS and leaves x, P, H, z and R bit-for-bit untouched."""
     rng = np.random.default_rng(9)
     m = 4
     P = random_spd(rng, 15, SCALE)
@@ -453,6 +492,9 @@ def test_gated_update_rejection_leaves_state_untouched() -> None:
 
 
 def test_gated_update_not_positive_definite() -> None:
+    """GIVEN a zero covariance and a noise-free measurement (innovation covariance 0),
+    WHEN gated_update runs,
+    THEN it returns -inf and leaves the state and the covariance at zero."""
     P = np.zeros((15, 15))
     H = np.zeros((1, 15))
     H[0, 3] = 1.0
@@ -461,6 +503,10 @@ def test_gated_update_not_positive_definite() -> None:
 
 
 def test_inject_conventions() -> None:
+    """GIVEN random true states and a computed state perturbed from each by an error state dx
+    with navd's conventions,
+    WHEN inject folds dx into the computed state,
+    THEN dx is zeroed, the true state is recovered, and the attitude is C <- Exp(phi) C^."""
     rng = np.random.default_rng(12)
     for _ in range(5):
         true = random_state(rng, rng.uniform(-70, 70))
@@ -484,6 +530,10 @@ def test_inject_conventions() -> None:
 
 
 def test_gated_update_singular_measurement_covariance() -> None:
+    """GIVEN a 2-row velocity measurement with fully correlated (singular, PSD) noise R, and a
+    positive definite innovation covariance S,
+    WHEN gated_update runs ungated,
+    THEN the NIS, state and covariance equal the textbook Kalman update."""
     rng = np.random.default_rng(21)
     P = random_spd(rng, 15, SCALE)
     H = np.zeros((2, 15))

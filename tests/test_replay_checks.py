@@ -41,6 +41,9 @@ def _csvs(src: Source, d: Path) -> tuple[Path, Path]:
 
 def test_ulog_without_gps_is_an_error_that_says_why(src: Source, tmp_path: Path,
                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN a ULog with IMU data but no GNSS fix,
+    WHEN it is replayed,
+    THEN replay fails and says "no GNSS fix"."""
     log = tmp_path / "nogps.ulg"
     write_ulog(log, dataclasses.replace(src, gnss=[]))
     rc = replay_main(["--log", str(log), "--out", str(tmp_path / "s.csv"), "--quiet"])
@@ -52,6 +55,9 @@ def test_ulog_without_gps_is_an_error_that_says_why(src: Source, tmp_path: Path,
 @pytest.mark.parametrize("imu", [_no_imu, _nan_imu])
 def test_tlog_without_imu_is_an_error_that_says_why(src: Source, tmp_path: Path, imu: Any,
                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN a tlog with no IMU records, or with IMU records whose gyro readings are all NaN,
+    WHEN it is replayed,
+    THEN replay fails and its last error line names the IMU."""
     log = tmp_path / "noimu.tlog"
     write_tlog(log, imu(src))
     rc = replay_main(["--log", str(log), "--out", str(tmp_path / "s.csv"), "--quiet"])
@@ -62,6 +68,9 @@ def test_tlog_without_imu_is_an_error_that_says_why(src: Source, tmp_path: Path,
 
 def test_csv_replay_with_zero_rows_is_an_error(src: Source, tmp_path: Path,
                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN an imu.csv and a gnss.csv with a header but no fix,
+    WHEN they are replayed,
+    THEN replay exits 1 with "error: no solution rows" and says "no GNSS fix"."""
     imu, gnss = _csvs(src, tmp_path)
     rc = replay_main(["--imu", str(imu), "--gnss", str(gnss), "--out", str(tmp_path / "s.csv"),
                       "--quiet"])
@@ -73,6 +82,10 @@ def test_csv_replay_with_zero_rows_is_an_error(src: Source, tmp_path: Path,
                                       "filter.bogus=1"])
 def test_unknown_or_bad_settings_are_errors(src: Source, tmp_path: Path, override: str,
                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN a good tlog and a --set of an unknown key, an unknown section or a bad value
+    (daemon.queue_size=-3),
+    WHEN it is replayed,
+    THEN replay exits 2 with a config error."""
     log = tmp_path / "run.tlog"
     write_tlog(log, src)
     rc = replay_main(["--log", str(log), "--out", str(tmp_path / "s.csv"), "--quiet",
@@ -83,6 +96,10 @@ def test_unknown_or_bad_settings_are_errors(src: Source, tmp_path: Path, overrid
 
 def test_settings_a_replay_does_not_use_are_named(src: Source, tmp_path: Path,
                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN a good tlog,
+    WHEN it is replayed with --set mavlink.use_receive_time=true, then with the shipped config,
+    THEN both succeed; the first says the setting has no effect on a replay, the second names
+    [mavlink] as a section a replay checks but does not use."""
     log = tmp_path / "run.tlog"
     write_tlog(log, src)
     rc = replay_main(["--log", str(log), "--out", str(tmp_path / "s.csv"), "--quiet",
@@ -100,6 +117,10 @@ def test_settings_a_replay_does_not_use_are_named(src: Source, tmp_path: Path,
 @pytest.mark.parametrize("flag", ["--out", "--reference-out", "--aiding-out"])
 def test_missing_output_directory_is_a_clear_error(src: Source, tmp_path: Path, flag: str,
                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN --out, --reference-out or --aiding-out in a directory that does not exist,
+    WHEN a tlog is replayed,
+    THEN replay exits 2, naming the flag, saying the directory does not exist and suggesting
+    mkdir -p, without a traceback."""
     log = tmp_path / "run.tlog"
     write_tlog(log, src)
     outs = {"--out": str(tmp_path / "s.csv")}

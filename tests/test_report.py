@@ -55,6 +55,11 @@ def replayed(src: Source, tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_report_renders_and_every_png_exists(replayed: Path,
                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN a 20 s simulated X8 log replayed to solution, reference and aiding CSVs,
+    WHEN ``navd report`` renders them headless in 5 s segments,
+    THEN every PNG the page links exists and is a real PNG (> 5 kB), the six standard figures
+    among them; roll/pitch/yaw/angle statistics have n > 500, ordered percentiles and RMS < 1 deg,
+    there are 4 segments using > 150 courses, and the page shows course_accepted and p99."""
     d = replayed
     out = d / "report"
     assert report_main(["--solution", str(d / "sol.csv"), "--reference", str(d / "ref.csv"),
@@ -81,6 +86,11 @@ def test_report_renders_and_every_png_exists(replayed: Path,
 
 def test_report_with_a_log_as_reference_and_no_aiding(src: Source, replayed: Path,
                                                       tmp_path: Path) -> None:
+    """GIVEN the replayed solution, a ULog of the same run as reference and no aiding file,
+    WHEN the report is built from 10 s on without segments, and again with no reference,
+    THEN the first has the four figures (all present), yaw RMS < 1 deg, vehicle_attitude as the
+    reference and gyro checks (navd >= 9 windows, RMS < 0.5 deg; reference < 0.02 deg); the
+    second has no statistics and no error figure."""
     ulg = tmp_path / "run.ulg"
     write_ulog(ulg, src)
     s = build_report(replayed / "sol.csv", tmp_path / "r", reference=ulg,
@@ -102,6 +112,9 @@ def test_report_with_a_log_as_reference_and_no_aiding(src: Source, replayed: Pat
 
 
 def test_report_bad_inputs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN a solution file that does not exist, and one without a pitch_deg column,
+    WHEN ``navd report`` is run on each,
+    THEN it exits 2 saying "no such file", and "missing column(s) pitch_deg"."""
     assert report_main(["--solution", str(tmp_path / "nope.csv"), "--out",
                         str(tmp_path / "o"), "--quiet"]) == 2
     assert "no such file" in capsys.readouterr().err
@@ -112,6 +125,11 @@ def test_report_bad_inputs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
 
 
 def test_reference_interpolation_across_the_yaw_wrap() -> None:
+    """GIVEN a reference whose yaw passes from 178 to -178 deg, followed by a 3 s gap,
+    WHEN it is interpolated (2 s maximum gap) before its start, across the wrap, between
+    samples, inside the gap and at its last sample,
+    THEN it is NaN before the start and inside the gap, 180 deg across the wrap, linear between
+    samples, and the quaternions are unit."""
     ref = RefSeries(np.array([0.0, 1e6, 2e6, 5e6]),
                     np.array([[0.0, 0.0, 178.0], [0.0, 0.0, -178.0], [10.0, 0.0, -170.0],
                               [10.0, 0.0, -170.0]]), "t")
@@ -125,7 +143,10 @@ def test_reference_interpolation_across_the_yaw_wrap() -> None:
 
 
 def test_course_check_finds_a_once_per_revolution_crab() -> None:
-    """A steady wind gives yaw - course = asin(w/V) sin(course - wind dir): the fit finds it."""
+    """GIVEN a full circle of courses at 15 m/s and a reference yaw crabbed by
+    12 deg x sin(course - 30 deg), as a steady wind gives (asin(w/V) sin(course - wind dir)),
+    WHEN course_check fits yaw - course,
+    THEN it uses every point, finds 12 deg of amplitude and leaves < 0.1 deg RMS of residual."""
     chi = np.linspace(-180.0, 180.0, 181, endpoint=False)
     crab = 12.0 * np.sin(np.radians(chi - 30.0))
     t = np.arange(len(chi)) * 2e5
@@ -138,6 +159,10 @@ def test_course_check_finds_a_once_per_revolution_crab() -> None:
 
 
 def test_error_stats_and_wrap() -> None:
+    """GIVEN angles of 190, -190, 180 and 0 deg, and errors of -3, 4 and NaN deg,
+    WHEN the angles are wrapped and the errors summarised,
+    THEN the angles become -170, 170, 180 and 0, and the statistics skip the NaN: n 2, max 4,
+    RMS sqrt(12.5)."""
     assert np.allclose(wrap_deg(np.array([190.0, -190.0, 180.0, 0.0])), [-170, 170, 180, 0])
     s = error_stats(np.array([-3.0, 4.0, math.nan]))
     assert s["n"] == 2 and s["max"] == 4.0 and s["rms"] == pytest.approx(math.sqrt(12.5))
@@ -165,7 +190,11 @@ def _write_pair(d: Path, t0_us: int, aligned: np.ndarray, yaw_err: np.ndarray) -
 
 
 def test_heading_is_scored_only_where_aligned(tmp_path: Path) -> None:
-    """Issue 16 item 6: an unaligned heading (sigma 90 deg) is not an accuracy claim."""
+    """GIVEN a 200-row solution aligned only on its last 80 rows (before: sigma 90 deg, 40 deg off),
+    and one never aligned,
+    WHEN the report is built (issue 16 item 6: an unaligned heading is not an accuracy claim),
+    THEN yaw and angle are scored on the 80 aligned rows only (roll on all), an unaligned segment
+    has no yaw RMS and the page says so; the never-aligned one has no yaw score and a note."""
     n = 200
     aligned = np.arange(n) >= 120
     yaw_err = np.where(aligned, 0.5, 40.0)
@@ -190,7 +219,10 @@ def test_heading_is_scored_only_where_aligned(tmp_path: Path) -> None:
 
 
 def test_wall_clock_stamps_count_from_the_log_start(tmp_path: Path) -> None:
-    """PX4 SITL stamps Unix time: axes, segments and --stats-from-s count from the start."""
+    """GIVEN a solution stamped in Unix time (as PX4 SITL stamps), and one on a boot clock,
+    WHEN the report is built (5 s segments, statistics from 10 s),
+    THEN for the Unix-time one the span, segments and --stats-from-s count from the log's start
+    and a note gives the start time; the boot-clock one keeps its own times."""
     t0 = 1_710_773_300_250_000  # us, Unix time
     n = 200
     sol, ref = _write_pair(tmp_path, t0, np.ones(n, bool), np.full(n, 0.5))
@@ -209,6 +241,9 @@ def test_wall_clock_stamps_count_from_the_log_start(tmp_path: Path) -> None:
 
 
 def test_wall_clock_figure_axis_has_no_offset(tmp_path: Path) -> None:
+    """GIVEN a solution stamped in Unix time,
+    WHEN the report saves its figures,
+    THEN no figure's time axis carries an offset label."""
     import matplotlib
 
     matplotlib.use("Agg")
