@@ -270,7 +270,7 @@ def test_daemon_survives_a_recording_it_cannot_write(caplog: pytest.LogCaptureFi
     """GIVEN a daemon recording to /dev/full (disk full),
     WHEN it records an unpackable sample and then samples until the write fails,
     THEN both errors are counted, the unpackable one is skipped, the full disk stops the
-    recording with the reason in status and a warning, and navigation goes on."""
+    recording with the reason in status and a warning, and no error escapes the daemon."""
     from navd.config.daemon import load_daemon_config
     from navd.daemon.daemon import Daemon
 
