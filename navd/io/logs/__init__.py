@@ -10,7 +10,8 @@ Detection (first bytes, not the file name):
     dataflash  ``0xA3 0x95`` message header at offset 0
     tlog       8-byte big-endian microsecond time stamp, then a MAVLink frame (0xFE / 0xFD),
                and the next time stamp + frame where that frame says it ends
-    x8         a directory or zip holding ``IMU.txt`` and ``GPSraw.txt``
+    x8         a directory or zip holding ``IMU.txt`` and ``GPSraw.txt`` or ``GPS.txt`` (the
+               InertialNav text logs: X8 plane, f450 and quad123 multirotors)
     csv        a directory holding ``imu.csv`` and ``gnss.csv`` (docs/replay-format.md)
 """
 
@@ -67,11 +68,12 @@ def detect_format(path: str | Path) -> str:
     p = Path(path)
     if p.is_dir():
         names = {q.name for q in p.iterdir()}
-        if {"IMU.txt", "GPSraw.txt"} <= names:
+        if "IMU.txt" in names and names & {"GPSraw.txt", "GPS.txt"}:
             return "x8"
         if {"imu.csv", "gnss.csv"} <= names:
             return "csv"
-        raise LogFormatError(f"{p}: directory holds neither IMU.txt + GPSraw.txt (X8) nor "
+        raise LogFormatError(f"{p}: directory holds neither IMU.txt + GPSraw.txt/GPS.txt "
+                             "(X8/InertialNav) nor "
                              "imu.csv + gnss.csv (replay CSV)")
     try:
         with open(p, "rb") as fh:
@@ -88,9 +90,9 @@ def detect_format(path: str | Path) -> str:
                 base = {n.rsplit("/", 1)[-1] for n in z.namelist()}
         except zipfile.BadZipFile as exc:
             raise LogFormatError(f"{p}: damaged zip file: {exc}") from exc
-        if {"IMU.txt", "GPSraw.txt"} <= base:
+        if "IMU.txt" in base and base & {"GPSraw.txt", "GPS.txt"}:
             return "x8"
-        raise LogFormatError(f"{p}: zip file without IMU.txt and GPSraw.txt")
+        raise LogFormatError(f"{p}: zip file without IMU.txt and GPSraw.txt or GPS.txt")
     if _looks_like_tlog(head):
         return "tlog"
     if not head:
