@@ -11,10 +11,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fixtures.logwriters import Source, source_from_sim, write_dataflash_ac33, write_ulog
+from fixtures.logwriters import (
+    ACC_EVERY,
+    Source,
+    source_from_sim,
+    write_dataflash,
+    write_dataflash_ac33,
+    write_ulog,
+)
 
 from navd.cli.replay import main as replay_main
-from navd.io.logs import read_log
+from navd.io.logs import LogOptions, read_log
 from navd.types import GnssSample
 
 
@@ -104,3 +111,41 @@ def test_garbage_in_a_dataflash_log_is_counted_not_printed(src: Source, tmp_path
     lines = (out + err).splitlines()
     assert len(lines) < 12, (out + err)[:2000]
     assert rc != 0 or any("unreadable" in ln for ln in lines), err
+
+
+def _split_increments(src: Source, every: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What pairing a gyro at every sample with an accel at every ``every``-th must give:
+    at each accel time T[k] (after the first), dt = T[k] - T[k-1], dtheta = mean of the gyro
+    samples in (T[k-1], T[k]] x dt, dvel = accel(T[k]) x dt."""
+    idx = np.arange(0, len(src.imu_t_us), every)
+    t = src.imu_t_us[idx]
+    dt = np.diff(t)
+    dth = np.stack([src.gyro[i - every + 1:i + 1].mean(axis=0) for i in idx[1:]])
+    dv = src.accel[idx[1:]]
+    s = dt[:, None] * 1e-6
+    return t[1:], dt, np.hstack([dth * s, dv * s])
+
+
+@pytest.mark.parametrize("style", ["ACC/GYR", "ACC1/GYR1"])
+def test_dataflash_acc_gyr_streams_pair_at_the_slower_rate(src: Source, tmp_path: Path,
+                                                          style: str) -> None:
+    """GIVEN a DataFlash log with no IMU message, only raw ACC and GYR streams (4.x with an
+    ``I`` field, or 3.x ACC1/GYR1 names), accel at half the gyro rate, stamped in SampleUS
+    (logged 1 ms later in TimeUS), and a second instance holding 9 rad/s,
+    WHEN it is read (instance 0, then instance 1),
+    THEN the increments sit at the accel (slower) SampleUS times with dtheta = mean gyro over
+    the interval x dt and dvel = accel x dt, and no instance-1 value leaks in; instance 1 reads
+    only instance 1."""
+    p = tmp_path / "acc.bin"
+    write_dataflash(p, src, imu=style)
+    data = read_log(p)
+    t, dt, inc = _split_increments(src, ACC_EVERY)
+    np.testing.assert_array_equal(data.imu_t_us, t)
+    np.testing.assert_array_equal(data.imu_dt_us, dt)
+    np.testing.assert_allclose(data.imu_inc, inc, rtol=1e-9, atol=1e-12)
+    assert any("ACC/GYR instance 0" in n and "accel rate" in n for n in data.notes), data.notes
+    other = read_log(p, options=LogOptions(imu_instance=1))
+    assert len(other.imu_t_us) == len(t)
+    np.testing.assert_allclose(other.imu_inc[:, :3] / (other.imu_dt_us[:, None] * 1e-6), 9.0,
+                               rtol=1e-6)
+    np.testing.assert_allclose(other.imu_inc[:, 3:], 0.0)

@@ -166,6 +166,57 @@ class SampleBuilder:
         if s is not None:
             self.add_imu(s)
 
+    def add_split(self, acc_t_us: I64, accel_mps2: F64, gyr_t_us: I64, gyro_rps: F64
+                  ) -> str:
+        """Separate accelerometer and gyro streams (each point samples with its own time
+        stamps: ArduPilot ACC/GYR, PX4 sensor_accel/sensor_gyro) as increments at the slower
+        stream's time stamps.  Return which stream set the rate ("accel" / "gyro").
+
+        Pairing at the slower rate keeps every increment backed by a real sample of both
+        sensors; interpolating the slower one up to the faster rate would invent data.  For
+        each interval (T[k-1], T[k]] of the slower stream: its own sample at T[k] is held over
+        the interval (the zero-order hold RateIntegrator uses), and the faster stream's
+        samples inside the interval are averaged, i.e. their increments summed over it.  An
+        interval longer than ``max_imu_gap_s`` (``imu_gap``) or without a sample of the faster
+        stream (``imu_unpaired``) is dropped, not bridged.
+        """
+        at = np.asarray(acc_t_us, dtype=np.int64)
+        gt = np.asarray(gyr_t_us, dtype=np.int64)
+        if len(at) < 2 or len(gt) < 2:
+            return "accel"
+        # the slower stream has the longer median interval (robust to a few gaps)
+        acc_slow = float(np.median(np.diff(at))) >= float(np.median(np.diff(gt)))
+        st, sv, ft, fv = ((at, accel_mps2, gt, gyro_rps) if acc_slow
+                          else (gt, gyro_rps, at, accel_mps2))
+        sv = np.asarray(sv, dtype=np.float64).reshape(-1, 3)
+        fv = np.asarray(fv, dtype=np.float64).reshape(-1, 3)
+        order = np.argsort(ft, kind="stable")
+        ft, fv = ft[order], fv[order]
+        csum = np.vstack([np.zeros((1, 3)), np.cumsum(fv, axis=0)])
+        # fast samples with T[k-1] < t <= T[k]
+        hi = np.searchsorted(ft, st, side="right")
+        max_gap = round(self.options.max_imu_gap_s * 1e6)
+        for k in range(1, len(st)):
+            dt = int(st[k] - st[k - 1])
+            if dt <= 0:
+                self.counters.inc("imu_not_increasing")
+                continue
+            if dt > max_gap:
+                self.counters.inc("imu_gap")
+                continue
+            n = int(hi[k] - hi[k - 1])
+            if n <= 0:
+                self.counters.inc("imu_unpaired")
+                continue
+            fast = (csum[hi[k]] - csum[hi[k - 1]]) / n
+            slow = sv[k]
+            g, a = (fast, slow) if acc_slow else (slow, fast)
+            s = dt * 1e-6
+            self.add_imu(ImuSample(int(st[k]), dt, float(g[0]) * s, float(g[1]) * s,
+                                   float(g[2]) * s, float(a[0]) * s, float(a[1]) * s,
+                                   float(a[2]) * s))
+        return "accel" if acc_slow else "gyro"
+
     def add_gnss(self, g: GnssSample) -> None:
         if self._gnss_delay_us:
             g = dataclasses.replace(g, t_us=g.t_us - self._gnss_delay_us)

@@ -7,6 +7,11 @@ Messages (pymavlink applies the format multipliers, so values are in the units b
           second IMU ``IMU2``), GyrX/Y/Z (rad/s, FRD), AccX/Y/Z (m/s^2, FRD).  Point samples:
           held over the interval to the previous one (RateIntegrator), as the MAVLink adapter
           does with HIGHRES_IMU.
+    ACC, GYR  (only when the log has no IMU message of the chosen instance) raw sensor
+          streams: TimeUS, I (``ACC1``/``GYR1``.. name suffix in 3.x logs), SampleUS (us since
+          boot, when sampled; used as the time), AccX/Y/Z (m/s^2) or GyrX/Y/Z (rad/s), FRD.
+          Each stream has its own time stamps and rate; they are paired into increments at
+          the slower of the two rates (SampleBuilder.add_split).
     GPS   TimeUS (logging time, not time of validity), I, Status (>= 3: 3D fix), Lat/Lng (deg),
           [older firmware (ArduCopter <= 3.3, Plane/Rover of that age): ``TimeMS`` is GPS
           time of week (ms) next to ``Week``; ``T`` (ms since boot) is the time.  Without
@@ -62,6 +67,15 @@ def _time_us(m: Any) -> int | None:
         return int(t)
     t = getattr(m, "TimeMS", None)
     return int(t) * 1000 if t is not None else None
+
+
+def _sample_time_us(m: Any) -> int | None:
+    """ACC/GYR: ``SampleUS`` (when the sensor sampled; boot us) over ``TimeUS`` (when it was
+    logged, possibly a batch later)."""
+    fields = m.get_fieldnames()
+    if "SampleUS" in fields and int(m.SampleUS) > 0:
+        return int(m.SampleUS)
+    return _time_us(m)
 
 
 def _gps_time_us(m: Any, boot_us_before: int | None) -> int | None:
@@ -144,6 +158,9 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
     gpa: dict[tuple[int, int], Any] = {}
     att: list[tuple[int, float, float, float]] = []
     ahrs2: list[tuple[int, float, float, float]] = []
+    acc: list[tuple[int, float, float, float]] = []
+    gyr: list[tuple[int, float, float, float]] = []
+    n_imu = 0  # IMU messages of the chosen instance
     damage: LogDamage | None = None
     boot_us: int | None = None  # boot time of the last IMU message read (any instance)
     firmware = ""  # the MSG naming the vehicle firmware ("APM:Copter V3.3-dev", "ArduPlane")
@@ -173,6 +190,19 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
                         continue
                     b.add_rates(t, (float(m.GyrX), float(m.GyrY), float(m.GyrZ)),
                                 (float(m.AccX), float(m.AccY), float(m.AccZ)))
+                    n_imu += 1
+                elif name[:3] in ("ACC", "GYR") and name[3:] in ("", "1", "2", "3"):
+                    # raw sensor streams (ACC1/GYR1.. in 3.x, ACC/GYR with I in 4.x): kept
+                    # in case the log has no IMU message of the chosen instance
+                    if _instance(m, name, name[:3]) != opts.imu_instance:
+                        continue
+                    t = _sample_time_us(m)
+                    if t is None:
+                        continue
+                    if name[:3] == "ACC":
+                        acc.append((t, float(m.AccX), float(m.AccY), float(m.AccZ)))
+                    else:
+                        gyr.append((t, float(m.GyrX), float(m.GyrY), float(m.GyrZ)))
                 elif name.startswith("GPS") and name[3:] in ("", "2"):
                     if _instance(m, name, "GPS") != opts.gnss_instance:
                         continue
@@ -197,6 +227,15 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
                         ahrs2.append((t, float(m.Roll), float(m.Pitch), float(m.Yaw)))
     except Exception as exc:  # a decoder exception mid-file is damage, not a crash
         damage = LogDamage(p, "byte", int(r.offset), f"pymavlink failed: {exc}")
+    notes: list[str] = []
+    if n_imu == 0 and acc and gyr:
+        # Only ACC/GYR for this instance: pair the two streams (never another instance's)
+        a_arr = np.asarray(acc, dtype=np.float64)
+        g_arr = np.asarray(gyr, dtype=np.float64)
+        slow = b.add_split(a_arr[:, 0].astype(np.int64), a_arr[:, 1:],
+                           g_arr[:, 0].astype(np.int64), g_arr[:, 1:])
+        notes.append(f"IMU from ACC/GYR instance {opts.imu_instance} (no IMU message), "
+                     f"increments at the {slow} rate")
     for t, status, m in gps_rows:
         if status < 3:
             b.counters.inc("gnss_no_3d_fix")
@@ -228,7 +267,6 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
         ref.yaw_rad = (ref.yaw_rad + math.pi) % (2.0 * math.pi) - math.pi
     else:
         ref = Reference.empty()
-    notes = []
     if "Copter" in firmware:  # course over ground is not heading on a multirotor
         notes.append(f"{firmware}: a multirotor; replay with --set filter.profile=multirotor")
     if not gpa:
