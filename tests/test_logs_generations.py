@@ -21,7 +21,7 @@ from fixtures.logwriters import (
 )
 
 from navd.cli.replay import main as replay_main
-from navd.io.logs import LogOptions, read_log
+from navd.io.logs import LogFormatError, LogOptions, read_log
 from navd.types import GnssSample
 
 
@@ -149,3 +149,43 @@ def test_dataflash_acc_gyr_streams_pair_at_the_slower_rate(src: Source, tmp_path
     np.testing.assert_allclose(other.imu_inc[:, :3] / (other.imu_dt_us[:, None] * 1e-6), 9.0,
                                rtol=1e-6)
     np.testing.assert_allclose(other.imu_inc[:, 3:], 0.0)
+
+
+def test_ulog_split_accel_gyro_topics_and_instance_choice(src: Source, tmp_path: Path) -> None:
+    """GIVEN a ULog without sensor_combined, whose sensor_accel / sensor_gyro are published as
+    multi_id 0 (the source; accel at half the gyro rate, timestamp_sample = sample time,
+    timestamp 1 ms later) and multi_id 1 (gyro 9 rad/s, zero accel),
+    WHEN it is read with the default instance and with imu_instance=1,
+    THEN instance 0 gives the increments of pairing at the accel (slower) sample times, and
+    instance 1 gives only instance 1's values (never a mix)."""
+    p = tmp_path / "split.ulg"
+    write_ulog(p, src, imu_topics="split")
+    data = read_log(p)
+    t, dt, inc = _split_increments(src, ACC_EVERY)
+    np.testing.assert_array_equal(data.imu_t_us, t)
+    np.testing.assert_array_equal(data.imu_dt_us, dt)
+    np.testing.assert_allclose(data.imu_inc, inc, rtol=1e-9, atol=1e-12)
+    assert any("multi_id 0" in n and "accel rate" in n for n in data.notes), data.notes
+    assert len(data.gnss_t_us) == len(src.gnss)
+    other = read_log(p, options=LogOptions(imu_instance=1))
+    assert len(other.imu_t_us) == len(t)
+    np.testing.assert_allclose(other.imu_inc[:, :3] / (other.imu_dt_us[:, None] * 1e-6), 9.0,
+                               rtol=1e-6)
+    np.testing.assert_allclose(other.imu_inc[:, 3:], 0.0)
+
+
+def test_ulog_sensor_combined_is_instance_0_other_instances_from_split_topics(
+        src: Source, tmp_path: Path) -> None:
+    """GIVEN a ULog with sensor_combined and sensor_accel / sensor_gyro multi_id 0 and 1,
+    WHEN it is read by default and with imu_instance=1 and 2,
+    THEN the default reads sensor_combined (every source sample, with its integral dt),
+    instance 1 reads the multi_id 1 pair only, and instance 2 is an error naming 0 and 1."""
+    p = tmp_path / "both.ulg"
+    write_ulog(p, src, imu_topics="both")
+    data = read_log(p)
+    np.testing.assert_array_equal(data.imu_t_us, src.imu_t_us)
+    one = read_log(p, options=LogOptions(imu_instance=1))
+    np.testing.assert_allclose(one.imu_inc[:, :3] / (one.imu_dt_us[:, None] * 1e-6), 9.0,
+                               rtol=1e-6)
+    with pytest.raises(LogFormatError, match=r"instances: \[0, 1\]"):
+        read_log(p, options=LogOptions(imu_instance=2))

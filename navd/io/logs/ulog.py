@@ -1,13 +1,23 @@
 """PX4 ULog (``.ulg``) reader, decoding with pyulog.
 
-Topics (instance 0 unless ``LogOptions`` says otherwise):
+Topics (``multi_id`` 0 unless ``LogOptions`` says otherwise; one instance per stream, never
+mixed):
     sensor_combined     ``timestamp`` (us), ``gyro_rad[3]`` (rad/s, FRD), ``gyro_integral_dt``,
                         ``accelerometer_m_s2[3]`` (m/s^2), ``accelerometer_integral_dt``.
                         The rates are PX4's averages over the integration interval, so
                         increment = rate x integral_dt (uint32 us; float seconds in some old
                         versions).  Without integral_dt fields, rates are held over the
                         interval to the previous sample (RateIntegrator).
-    vehicle_gps_position (preferred, the selected receiver) or sensor_gps
+    sensor_accel, sensor_gyro  (when there is no sensor_combined of the chosen instance: a
+                        log without it, or ``imu_instance`` > 0, since sensor_combined holds
+                        only the IMU PX4 selected) the one ``multi_id`` asked for, both topics
+                        of the same instance: ``timestamp_sample`` (us, else ``timestamp``),
+                        ``x``, ``y``, ``z`` (m/s^2 / rad/s, FRD).  Point samples with their
+                        own time stamps, paired into increments at the slower rate
+                        (SampleBuilder.add_split).
+    vehicle_gps_position (preferred, the selected receiver) or sensor_gps, ``multi_id`` =
+                        ``gnss_instance`` (PX4 <= 1.10 published one vehicle_gps_position per
+                        receiver; newer ones one sensor_gps per receiver)
                         time = ``timestamp_sample`` if present and non-zero, else ``timestamp``;
                         lat/lon int32 1e-7 deg (older) or ``latitude_deg``/``longitude_deg``
                         float64 deg (PX4 >= 1.14); altitude ``alt_ellipsoid`` / ``alt`` int32
@@ -50,7 +60,8 @@ from navd.units import DEG
 MAGIC = b"ULog\x01\x12\x35"
 _TYPES = frozenset(b"FDIMPQARSOLCB")
 _HDR = struct.Struct("<HB")
-TOPICS = ("sensor_combined", "vehicle_gps_position", "sensor_gps", "vehicle_attitude")
+TOPICS = ("sensor_combined", "sensor_accel", "sensor_gyro", "vehicle_gps_position",
+          "sensor_gps", "vehicle_attitude")
 
 
 def scan_ulog(buf: bytes | memoryview) -> tuple[int, str | None]:
@@ -140,6 +151,40 @@ def _imu(b: SampleBuilder, d: dict[str, Any]) -> None:
     for k in range(len(tl)):
         g, a = gy[k], ac[k]
         b.add_rates(tl[k], (g[0], g[1], g[2]), (a[0], a[1], a[2]))
+
+
+def _sample_times(d: dict[str, Any]) -> Any:
+    """``timestamp_sample`` (when measured) where present and non-zero, else ``timestamp``
+    (when published)."""
+    t = np.asarray(d["timestamp"], dtype=np.int64)
+    ts = _field(d, "timestamp_sample")
+    if ts is not None:
+        tsa = np.asarray(ts, dtype=np.int64)
+        t = np.where(tsa > 0, tsa, t)
+    return t
+
+
+def _split_imu(b: SampleBuilder, ulog: Any, instance: int) -> str | None:
+    """sensor_accel + sensor_gyro of one multi_id as increments at the slower rate; None if
+    that instance lacks either topic (never pairs one instance's accel with another's gyro)."""
+    acc = _dataset(ulog, "sensor_accel", instance)
+    gyr = _dataset(ulog, "sensor_gyro", instance)
+    if acc is None or gyr is None:
+        return None
+    av, gv = _xyz(acc), _xyz(gyr)
+    if av is None or gv is None:
+        raise LogFormatError("sensor_accel / sensor_gyro without x, y, z fields")
+    return b.add_split(_sample_times(acc), av, _sample_times(gyr), gv)
+
+
+def _xyz(d: dict[str, Any]) -> F64 | None:
+    if not all(c in d for c in "xyz"):
+        return None
+    return np.stack([np.asarray(d[c], dtype=np.float64) for c in "xyz"], 1)
+
+
+def _instances(ulog: Any, name: str) -> list[int]:
+    return sorted({int(ds.multi_id) for ds in ulog.data_list if ds.name == name})
 
 
 def _gnss(b: SampleBuilder, d: dict[str, Any], opts: LogOptions) -> None:
@@ -237,16 +282,30 @@ def read_ulog(path: str | Path, options: LogOptions | None = None) -> LogData:
     except Exception as exc:  # pyulog raises assorted types on a broken definition section
         raise LogFormatError(f"{p}: pyulog cannot parse the file: {exc}") from exc
     b = SampleBuilder(opts)
+    # sensor_combined is the IMU PX4 itself selected (one instance); another instance, or a
+    # log without sensor_combined, reads that multi_id's sensor_accel + sensor_gyro
+    notes: list[str] = []
     sc = _dataset(ulog, "sensor_combined", opts.imu_instance)
-    if sc is None:
-        raise LogFormatError(f"{p}: no sensor_combined data before byte {end}")
-    _imu(b, sc)
+    if sc is not None:
+        _imu(b, sc)
+    else:
+        slow = _split_imu(b, ulog, opts.imu_instance)
+        if slow is None:
+            have = sorted(set(_instances(ulog, "sensor_accel"))
+                          & set(_instances(ulog, "sensor_gyro")))
+            raise LogFormatError(
+                f"{p}: no sensor_combined instance {opts.imu_instance} and no sensor_accel + "
+                f"sensor_gyro multi_id {opts.imu_instance} before byte {end}"
+                + (f" (sensor_accel + sensor_gyro instances: {have})" if have else ""))
+        notes.append(f"IMU from sensor_accel + sensor_gyro multi_id {opts.imu_instance}, "
+                     f"increments at the {slow} rate")
     gps = _dataset(ulog, "vehicle_gps_position", opts.gnss_instance)
     src = "vehicle_gps_position"
     if gps is None:
         gps = _dataset(ulog, "sensor_gps", opts.gnss_instance)
         src = "sensor_gps"
-    notes = [f"GNSS from {src}"] if gps is not None else ["no GNSS topic in the log"]
+    notes.append(f"GNSS from {src} multi_id {opts.gnss_instance}" if gps is not None
+                 else "no GNSS topic in the log")
     if gps is not None:
         _gnss(b, gps, opts)
     ref = _reference(_dataset(ulog, "vehicle_attitude", 0))
