@@ -189,3 +189,19 @@ def test_ulog_sensor_combined_is_instance_0_other_instances_from_split_topics(
                                rtol=1e-6)
     with pytest.raises(LogFormatError, match=r"instances: \[0, 1\]"):
         read_log(p, options=LogOptions(imu_instance=2))
+
+
+def test_dataflash_gps_week_ms_only_maps_through_messages_with_both_clocks(
+        src: Source, tmp_path: Path) -> None:
+    """GIVEN an old DataFlash log whose GPS messages carry only GPS time (TimeMS = ms of week,
+    Week) and are logged just before the IMU sample of their millisecond, and CAM messages
+    logging boot time (TimeMS) beside GPS time (GPSTime, GPSWeek),
+    WHEN it is read,
+    THEN every fix lands exactly at its boot time (GPS time + the CAM clock offset), not at
+    the message logged before it (10 ms early), and a note says how it was timed."""
+    p = tmp_path / "ac32.bin"
+    write_dataflash_ac33(p, src, boot_time_in_gps=False, camera=True)
+    data = read_log(p)
+    want = np.asarray([g.t_us // 1000 * 1000 for g in src.gnss])
+    np.testing.assert_array_equal(data.gnss_t_us, want)
+    assert any("mapped to boot time" in n for n in data.notes), data.notes

@@ -15,7 +15,11 @@ Messages (pymavlink applies the format multipliers, so values are in the units b
     GPS   TimeUS (logging time, not time of validity), I, Status (>= 3: 3D fix), Lat/Lng (deg),
           [older firmware (ArduCopter <= 3.3, Plane/Rover of that age): ``TimeMS`` is GPS
           time of week (ms) next to ``Week``; ``T`` (ms since boot) is the time.  Without
-          ``T``, the boot time of the message logged just before it is used.]
+          ``T``, GPS time (week, ms) is mapped to boot time through the messages that log
+          both clocks (another GPS instance with ``T``/``TimeUS`` + ``GMS``/``GWk``, ``CAM``
+          / ``TRIG`` with ``GPSTime``/``GPSWeek``): boot - GPS time is constant, the median
+          is used.  With none of those, the boot time of the message logged just before.]
+          TimeUS is preferred whenever logged: it is the IMU's clock; GMS/GWk are not.
           Alt (m, **MSL**), Spd (m/s), GCrs (deg), VZ (m/s, down positive: AP_GPS velocity is
           NED).  vN = Spd cos GCrs, vE = Spd sin GCrs, vD = VZ.
     GPA   HAcc, VAcc (m), SAcc (m/s) and, where logged, Und (geoid undulation, m) and VV
@@ -92,6 +96,34 @@ def _gps_time_us(m: Any, boot_us_before: int | None) -> int | None:
     return _time_us(m)
 
 
+# (ms of week, week) field pairs that give GPS time: GPS in TimeUS logs, CAM/TRIG camera
+# triggers, and the old GPS message whose TimeMS is the time of week
+_GPS_CLOCK_FIELDS = (("GMS", "GWk"), ("GPSTime", "GPSWeek"), ("TimeMS", "Week"))
+_WEEK_MS = 604_800_000
+
+
+def _gps_clock_ms(m: Any) -> int | None:
+    """GPS time (ms since the GPS epoch) from a message's week and ms-of-week fields; None
+    without them or before the receiver knew the week (week 0)."""
+    fields = m.get_fieldnames()
+    for ms, wk in _GPS_CLOCK_FIELDS:
+        if ms in fields and wk in fields:
+            week = int(getattr(m, wk))
+            return week * _WEEK_MS + int(getattr(m, ms)) if week > 0 else None
+    return None
+
+
+def _boot_us(m: Any) -> int | None:
+    """A message's own boot time (us), if it logs one: TimeUS; T (ms) beside the old GPS time
+    of week; TimeMS where it is not the time of week (no Week field)."""
+    fields = m.get_fieldnames()
+    if "TimeUS" in fields:
+        return int(m.TimeUS)
+    if "Week" in fields:
+        return int(m.T) * 1000 if "T" in fields else None
+    return int(m.TimeMS) * 1000 if "TimeMS" in fields else None
+
+
 def _instance(m: Any, name: str, base: str) -> int:
     """Instance from the ``I`` field, or from the name suffix (IMU2 -> 1) in old logs."""
     i = getattr(m, "I", None)
@@ -161,6 +193,10 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
     acc: list[tuple[int, float, float, float]] = []
     gyr: list[tuple[int, float, float, float]] = []
     n_imu = 0  # IMU messages of the chosen instance
+    # boot time - GPS time (us) from every message logging both clocks, and the GPS rows
+    # (index, GPS ms) that logged only GPS time, to move onto the boot clock after the read
+    clock_offsets: list[int] = []
+    week_only: list[tuple[int, int]] = []
     damage: LogDamage | None = None
     boot_us: int | None = None  # boot time of the last IMU message read (any instance)
     firmware = ""  # the MSG naming the vehicle firmware ("APM:Copter V3.3-dev", "ArduPlane")
@@ -204,11 +240,23 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
                     else:
                         gyr.append((t, float(m.GyrX), float(m.GyrY), float(m.GyrZ)))
                 elif name.startswith("GPS") and name[3:] in ("", "2"):
+                    gps_ms = _gps_clock_ms(m)
+                    own_boot = _boot_us(m)
+                    if gps_ms is not None and own_boot is not None:
+                        clock_offsets.append(own_boot - gps_ms * 1000)
                     if _instance(m, name, "GPS") != opts.gnss_instance:
                         continue
                     t = _gps_time_us(m, boot_us)
                     if t is not None:
+                        if own_boot is None and gps_ms is not None:
+                            week_only.append((len(gps_rows), gps_ms))
                         gps_rows.append((t, int(m.Status), m))
+                elif name in ("CAM", "TRIG"):
+                    # camera triggers log the GPS time next to their boot time: a clock tie
+                    gps_ms = _gps_clock_ms(m)
+                    own_boot = _boot_us(m)
+                    if gps_ms is not None and own_boot is not None:
+                        clock_offsets.append(own_boot - gps_ms * 1000)
                 elif name.startswith("GPA") and name[3:] in ("", "2"):
                     t = _time_us(m)
                     if t is not None:
@@ -228,6 +276,19 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
     except Exception as exc:  # a decoder exception mid-file is damage, not a crash
         damage = LogDamage(p, "byte", int(r.offset), f"pymavlink failed: {exc}")
     notes: list[str] = []
+    if week_only and clock_offsets:
+        # Both clocks run at the same rate, so boot - GPS time is one constant per power
+        # cycle; the median shrugs off a message logged late.  Exact to the logged ms, where
+        # the message logged before the fix (the fallback) is up to one interval early.
+        offset = int(np.median(np.asarray(clock_offsets, dtype=np.int64)))
+        for k, gps_ms in week_only:
+            _, status, m = gps_rows[k]
+            gps_rows[k] = (gps_ms * 1000 + offset, status, m)
+        notes.append(f"GPS week/ms mapped to boot time through {len(clock_offsets)} messages "
+                     "logging both clocks")
+    elif week_only:
+        notes.append("GPS logs only GPS week/ms: fixes timed by the message logged before "
+                     "each (no message logs both clocks)")
     if n_imu == 0 and acc and gyr:
         # Only ACC/GYR for this instance: pair the two streams (never another instance's)
         a_arr = np.asarray(acc, dtype=np.float64)
