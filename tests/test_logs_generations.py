@@ -205,3 +205,32 @@ def test_dataflash_gps_week_ms_only_maps_through_messages_with_both_clocks(
     want = np.asarray([g.t_us // 1000 * 1000 for g in src.gnss])
     np.testing.assert_array_equal(data.gnss_t_us, want)
     assert any("mapped to boot time" in n for n in data.notes), data.notes
+
+
+@pytest.mark.parametrize("topic", ["vehicle_gps_position", "sensor_gps"])
+def test_ulog_gnss_instance_is_one_receiver(src: Source, tmp_path: Path, topic: str) -> None:
+    """GIVEN a ULog with two receivers in ``topic`` (multi_id 1: 0.01 deg north, 50 ms later;
+    PX4 <= 1.10 per-receiver vehicle_gps_position, newer sensor_gps),
+    WHEN it is read by default and with gnss_instance=1,
+    THEN each read holds exactly one receiver's fixes, all of them, none of the other's."""
+    p = tmp_path / "gps2.ulg"
+    write_ulog(p, src, topic, second_receiver=True)
+    lat0 = np.asarray([g.lat_rad for g in src.gnss])
+    for inst, dlat, dt in ((0, 0.0, 0), (1, 0.01, 50_000)):
+        d = read_log(p, options=LogOptions(gnss_instance=inst))
+        np.testing.assert_array_equal(d.gnss_t_us, [g.t_us + dt for g in src.gnss])
+        np.testing.assert_allclose(d.gnss[:, 0], lat0 + np.radians(dlat), atol=1e-8)
+        assert any(f"multi_id {inst}" in n for n in d.notes), d.notes
+
+
+def test_dataflash_old_imu2_is_instance_1(src: Source, tmp_path: Path) -> None:
+    """GIVEN an ArduCopter 3.3 log with IMU and IMU2 (IMU2: 9 rad/s, zero accel),
+    WHEN it is read with imu_instance=1,
+    THEN only IMU2 values are read, on IMU's time stamps."""
+    p = tmp_path / "ac33.bin"
+    write_dataflash_ac33(p, src)
+    d = read_log(p, options=LogOptions(imu_instance=1))
+    assert len(d.imu_t_us) == len(src.imu_t_us) - 1
+    np.testing.assert_allclose(d.imu_inc[:, :3] / (d.imu_dt_us[:, None] * 1e-6), 9.0,
+                               rtol=1e-6)
+    np.testing.assert_allclose(d.imu_inc[:, 3:], 0.0)
