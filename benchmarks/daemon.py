@@ -34,8 +34,9 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 import zenoh
@@ -58,6 +59,63 @@ def cpu_s(pid: int) -> float:
     """User + system CPU seconds of a process (all threads)."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / CLK_TCK  # utime, stime (fields 14, 15)
+
+
+@dataclass
+class Navd:
+    """A ``navd run`` subprocess on free loopback ports: MAVLink in (``port_in``), ATTITUDE
+    out (``port_out``), Zenoh (``port_z``); its log in ``tmp/navd.log``."""
+
+    proc: subprocess.Popen[bytes]
+    tmp: Path
+    port_in: int
+    port_out: int
+    port_z: int
+    vehicle: str
+    log: IO[bytes]
+    notify: socket.socket
+
+    def wait_ready(self) -> None:
+        """Block until systemd-style READY=1 (start-up then excluded from the figures)."""
+        while b"READY=1" not in self.notify.recv(4096):
+            pass
+
+    def stop(self) -> int | None:
+        """SIGTERM (navd drains its queue and logs its final stats); the exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            self.proc.wait(30)
+        self.log.close()
+        self.notify.close()
+        return self.proc.returncode
+
+    def log_text(self) -> str:
+        return (self.tmp / "navd.log").read_text(errors="replace")
+
+
+def start_navd(sets: list[str], status_period_s: float = 1.0,
+               log_period_s: float = 3600.0) -> Navd:
+    """Start ``navd run`` with a 1 kHz MAVLink UDP config; ``sets`` are ``--set`` values."""
+    tmp = Path(tempfile.mkdtemp(prefix="navd-bench-"))
+    port_in, port_out, port_z = free_port(), free_port(), free_port(socket.SOCK_STREAM)
+    vehicle = f"bench{port_z}"
+    cfg = tmp / "navd.toml"
+    cfg.write_text(
+        f'[mavlink]\nlisten = "udpin:127.0.0.1:{port_in}"\n'
+        f'send = "udpout:127.0.0.1:{port_out}"\nnominal_imu_rate_hz = 1000.0\n'
+        f'[zenoh]\nvehicle = "{vehicle}"\nlisten = ["tcp/127.0.0.1:{port_z}"]\n'
+        f"[daemon]\nstatus_period_s = {status_period_s}\nlog_period_s = {log_period_s}\n")
+    notify_path = str(tmp / "notify")
+    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    notify.bind(notify_path)
+    notify.settimeout(300)
+    log = open(tmp / "navd.log", "wb")  # noqa: SIM115 - closed by Navd.stop
+    navd_set = [arg for kv in sets for arg in ("--set", kv)]
+    proc = subprocess.Popen([sys.executable, "-m", "navd", "run", "--config", str(cfg),
+                             *navd_set],
+                            stdout=log, stderr=log, cwd=ROOT,
+                            env={**os.environ, "NOTIFY_SOCKET": notify_path})
+    return Navd(proc, tmp, port_in, port_out, port_z, vehicle, log, notify)
 
 
 class AttitudeReceiver(threading.Thread):
@@ -154,33 +212,16 @@ def main(argv: list[str] | None = None) -> int:
     run = generate(load_scenario("car480", overrides={
         "imu.rate_hz": 1000.0, "duration_s": min(480.0, total_sensor_s)}), seed=1)
     frames = list(mavlink_events(run))
-    tmp = Path(tempfile.mkdtemp(prefix="navd-bench-"))
-    port_in, port_out, port_z = free_port(), free_port(), free_port(socket.SOCK_STREAM)
-    vehicle = f"bench{port_z}"
-    cfg = tmp / "navd.toml"
-    cfg.write_text(
-        f'[mavlink]\nlisten = "udpin:127.0.0.1:{port_in}"\n'
-        f'send = "udpout:127.0.0.1:{port_out}"\nnominal_imu_rate_hz = 1000.0\n'
-        f'[zenoh]\nvehicle = "{vehicle}"\nlisten = ["tcp/127.0.0.1:{port_z}"]\n'
-        "[daemon]\nstatus_period_s = 1.0\nlog_period_s = 3600.0\n")
-    notify_path = str(tmp / "notify")
-    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    notify.bind(notify_path)
-    notify.settimeout(300)
-    log = open(tmp / "navd.log", "wb")  # noqa: SIM115 - closed below
-    navd_set = [arg for kv in a.set for arg in ("--set", kv)]
-    proc = subprocess.Popen([sys.executable, "-m", "navd", "run", "--config", str(cfg),
-                             *navd_set],
-                            stdout=log, stderr=log, cwd=ROOT,
-                            env={**os.environ, "NOTIFY_SOCKET": notify_path})
+    navd = start_navd(a.set)
+    port_in, port_out, port_z = navd.port_in, navd.port_out, navd.port_z
+    vehicle, proc, tmp = navd.vehicle, navd.proc, navd.tmp
     rx = AttitudeReceiver(port_out)
     rx.start()
     results: dict[str, Any] = {"machine": platform.platform(), "cpus": os.cpu_count(),
                                "python": platform.python_version(),
                                "load_avg_before": os.getloadavg()[0]}
     try:
-        while b"READY=1" not in notify.recv(4096):
-            pass
+        navd.wait_ready()
         status = StatusSubscriber(port_z, vehicle)
         time.sleep(1.0)
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -249,11 +290,7 @@ def main(argv: list[str] | None = None) -> int:
         status.session.close()
     finally:
         rx.running = False
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            proc.wait(30)
-        log.close()
-        notify.close()
+        navd.stop()
 
     loop_line = [ln for ln in (tmp / "navd.log").read_text().splitlines() if "event loop:" in ln]
     results["event_loop"] = loop_line[0].split("event loop: ", 1)[1] if loop_line else "?"
