@@ -1,6 +1,6 @@
-"""What every input adapter shares: plausibility checks (the estimator's own,
-:mod:`navd.core.plausible`), the rate -> increment conversion, and the reject path (count +
-rate-limited log line).
+"""What every input adapter shares: IMU plausibility (the estimator's own rule,
+:mod:`navd.core.plausible`, whose ``gnss_reason`` the adapters call directly), the rate ->
+increment conversion, and the reject path (count + rate-limited log line).
 
 Rate-type IMU messages (MAVLink HIGHRES_IMU / SCALED_IMU / RAW_IMU, DroneCAN RawIMU without
 integrals) carry a point sample of angular rate and specific force.  The estimator wants
@@ -17,7 +17,7 @@ import math
 import time
 from collections.abc import Callable, Hashable
 
-from navd.core.plausible import Limits, gnss_reason, imu_reason
+from navd.core.plausible import Limits, imu_reason
 from navd.diag import Counters, RateLimitedLog
 from navd.types import GnssSample, ImuSample, PolSample
 
@@ -25,7 +25,7 @@ Sample = ImuSample | GnssSample | PolSample
 SampleCallback = Callable[[Sample], None]
 
 __all__ = ["Limits", "RateIntegrator", "Rejector", "Sample", "SampleCallback", "all_finite",
-           "gnss_reject_reason", "imu_reject_reason", "monotonic_us"]
+           "imu_reject_reason", "monotonic_us"]
 
 
 def monotonic_us() -> int:
@@ -75,23 +75,6 @@ def imu_reject_reason(
     """Reason to drop one IMU point sample (rad/s, m/s^2), or None if plausible
     (:func:`navd.core.plausible.imu_reason`)."""
     return imu_reason(gx, gy, gz, ax, ay, az, limits.max_gyro_rps, limits.max_accel_mps2)
-
-
-def gnss_reject_reason(
-    lat_deg: float,
-    lon_deg: float,
-    alt_m: float,
-    vel_ned: tuple[float, float, float],
-    limits: Limits,
-) -> str | None:
-    """Reason to drop one GNSS fix, or None (:func:`navd.core.plausible.gnss_reason`; its
-    limits are constants, ``limits`` is accepted for the adapters' call sites).
-
-    Velocity components may be NaN on purpose (the message does not carry them); only
-    finite ones are range-checked.  Position must be finite.
-    """
-    return gnss_reason(math.radians(lat_deg), math.radians(lon_deg), alt_m, vel_ned[0],
-                       vel_ned[1], vel_ned[2])
 
 
 class RateIntegrator:

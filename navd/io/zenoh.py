@@ -52,7 +52,6 @@ __all__ = [
 _log = logging.getLogger(__name__)
 
 SCHEMA_VERSION = 1
-_BAD_CHUNK_CHARS = ZENOH_BAD_CHUNK_CHARS  # the rule [zenoh] vehicle is checked against
 
 
 @dataclass(frozen=True)
@@ -63,7 +62,7 @@ class ZenohConfig:
     multicast_scouting: bool = False
 
     def __post_init__(self) -> None:
-        if not self.vehicle or _BAD_CHUNK_CHARS & set(self.vehicle):
+        if not self.vehicle or ZENOH_BAD_CHUNK_CHARS & set(self.vehicle):
             raise ValueError(f"vehicle {self.vehicle!r} must be one key chunk (no / * $ ? #)")
 
     def to_zenoh(self) -> Any:

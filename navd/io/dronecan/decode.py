@@ -41,13 +41,13 @@ import can
 import dronecan
 from dronecan import transport
 
+from navd.core.plausible import gnss_reason
 from navd.diag import Counters, RateLimitedLog
 from navd.io.adapter import DecoderBase
 from navd.io.common import (
     Limits,
     Sample,
     all_finite,
-    gnss_reject_reason,
     imu_reject_reason,
     monotonic_us,
 )
@@ -355,7 +355,9 @@ class DronecanDecoder(DecoderBase[DronecanConfig]):
         if not all_finite(vn, ve, vd):
             self._reject("gnss_nonfinite", "ned_velocity=%r", (vn, ve, vd))
             return None
-        reason = gnss_reject_reason(lat_deg, lon_deg, alt_m, (vn, ve, vd), self.config.limits)
+        lat_rad = lat_deg * DEG
+        lon_rad = lon_deg * DEG
+        reason = gnss_reason(lat_rad, lon_rad, alt_m, vn, ve, vd)
         if reason is not None:
             self._reject(reason, "lat=%r lon=%r alt=%r", lat_deg, lon_deg, alt_m)
             return None
@@ -376,8 +378,8 @@ class DronecanDecoder(DecoderBase[DronecanConfig]):
                 self._reject("gnss_bad_ecef", "|r|=%r m vel=%r", r, (ex, ey, ez))
         return GnssSample(
             t_us=t_us,
-            lat_rad=lat_deg * DEG,
-            lon_rad=lon_deg * DEG,
+            lat_rad=lat_rad,
+            lon_rad=lon_rad,
             alt_m=alt_m,
             vel_n=vn,
             vel_e=ve,

@@ -86,14 +86,10 @@ def _gps_time_us(m: Any, boot_us_before: int | None) -> int | None:
     """A GPS message's time since boot (us).  ArduPilot logs up to ArduCopter 3.3 store GPS
     time of week in ``TimeMS`` (about 6e8 ms on a Tuesday) with ``Week`` beside it, and the
     boot time in ``T`` (ms); read as boot time, TOW put every fix days after the IMU."""
-    fields = m.get_fieldnames()
-    if "TimeUS" in fields:
-        return int(m.TimeUS)
-    if "Week" in fields:  # TimeMS is GPS time of week
-        if "T" in fields:
-            return int(m.T) * 1000
+    own = _boot_us(m)
+    if own is None and "Week" in m.get_fieldnames():
         return boot_us_before  # no boot time logged: the message logged before it
-    return _time_us(m)
+    return own
 
 
 # (ms of week, week) field pairs that give GPS time: GPS in TimeUS logs, CAM/TRIG camera

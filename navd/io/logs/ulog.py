@@ -188,11 +188,7 @@ def _instances(ulog: Any, name: str) -> list[int]:
 
 
 def _gnss(b: SampleBuilder, d: dict[str, Any], opts: LogOptions) -> None:
-    ts = _field(d, "timestamp_sample")
-    t = np.asarray(d["timestamp"], dtype=np.int64)
-    if ts is not None:
-        tsa = np.asarray(ts, dtype=np.int64)
-        t = np.where(tsa > 0, tsa, t)
+    t = _sample_times(d)
     n = len(t)
 
     def deg(*names: str) -> F64:
@@ -251,11 +247,7 @@ def _gnss(b: SampleBuilder, d: dict[str, Any], opts: LogOptions) -> None:
 def _reference(d: dict[str, Any] | None) -> Reference:
     if d is None or "q[0]" not in d:
         return Reference.empty()
-    t = np.asarray(d["timestamp"], dtype=np.int64)
-    ts = _field(d, "timestamp_sample")
-    if ts is not None:
-        tsa = np.asarray(ts, dtype=np.int64)
-        t = np.where(tsa > 0, tsa, t)
+    t = _sample_times(d)
     q = [np.asarray(d[f"q[{i}]"], dtype=np.float64) for i in range(4)]
     r, p, y = quat_to_euler(np.stack(q, 1)).T
     return Reference(t, r, p, y, "vehicle_attitude")

@@ -58,12 +58,11 @@ from navd.io.logs.common import (
     SampleBuilder,
 )
 from navd.types import FixType, GnssSample
-from navd.units import DEG
+from navd.units import DEG, G0
 
 FILES = {"IMU.txt": 8, "GPSraw.txt": 7, "GPS.txt": 13, "ATT.txt": 5}
 GNSS_FILES = ("GPSraw.txt", "GPS.txt")  # in order of preference: GPSraw has NED velocity
 
-G0 = 9.80665
 REST_WINDOW_S = 10.0   # logs start on the ground: look for rest samples here
 REST_GYRO_RPS = 0.2
 REST_ACCEL_TOL = 1.0   # | |f| - g | at rest, m/s^2

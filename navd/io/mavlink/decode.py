@@ -1,12 +1,10 @@
 """MAVLink 2 bytes -> navd samples: the input settings, the message tables and the decoder.
 
 Decoding uses the ardupilotmega dialect (a superset of common) so an ArduPilot stream parses
-without "unknown message" noise.  This module owns everything between wire bytes and
-:data:`navd.io.common.Sample`; it opens nothing (links live in :mod:`navd.io.mavlink.link`),
-so log replay (:mod:`navd.io.logs.tlog`) and the daemon share it unchanged.
-
-Decoding uses the ardupilotmega dialect (a superset of common) so an ArduPilot stream parses
-without "unknown message" noise; everything emitted is from common.xml.
+without "unknown message" noise; everything emitted is from common.xml.  This module owns
+everything between wire bytes and :data:`navd.io.common.Sample`; it opens nothing (links live
+in :mod:`navd.io.mavlink.link`), so log replay (:mod:`navd.io.logs.tlog`) and the daemon share
+it unchanged.
 
 Inputs (all converted to SI, NED / FRD, integer microseconds)
     HIGHRES_IMU      m/s^2, rad/s, time_usec.  Used only if ``fields_updated`` has the six
@@ -40,13 +38,13 @@ from typing import Any, Literal
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from navd.core.plausible import gnss_reason
 from navd.diag import Counters, RateLimitedLog
 from navd.io.adapter import DecoderBase
 from navd.io.common import (
     Limits,
     Sample,
     all_finite,
-    gnss_reject_reason,
     imu_reject_reason,
 )
 from navd.types import FixType, GnssSample, ImuSample, PolSample
@@ -387,14 +385,16 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
             return None
         lat_deg = lat_e7 * 1e-7
         lon_deg = lon_e7 * 1e-7
-        reason = gnss_reject_reason(lat_deg, lon_deg, alt_m, vel, self.config.limits)
+        lat_rad = lat_deg * DEG
+        lon_rad = lon_deg * DEG
+        reason = gnss_reason(lat_rad, lon_rad, alt_m, *vel)
         if reason is not None:
             self._reject(reason, "lat=%r lon=%r alt=%r vel=%r", lat_deg, lon_deg, alt_m, vel)
             return None
         return GnssSample(
             t_us=t_us,
-            lat_rad=lat_deg * DEG,
-            lon_rad=lon_deg * DEG,
+            lat_rad=lat_rad,
+            lon_rad=lon_rad,
             alt_m=alt_m,
             vel_n=vel[0],
             vel_e=vel[1],
