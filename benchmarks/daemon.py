@@ -214,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     frames = list(mavlink_events(run))
     navd = start_navd(a.set)
     port_in, port_out, port_z = navd.port_in, navd.port_out, navd.port_z
-    vehicle, proc, tmp = navd.vehicle, navd.proc, navd.tmp
+    vehicle, proc = navd.vehicle, navd.proc
     rx = AttitudeReceiver(port_out)
     rx.start()
     results: dict[str, Any] = {"machine": platform.platform(), "cpus": os.cpu_count(),
@@ -292,7 +292,7 @@ def main(argv: list[str] | None = None) -> int:
         rx.running = False
         navd.stop()
 
-    loop_line = [ln for ln in (tmp / "navd.log").read_text().splitlines() if "event loop:" in ln]
+    loop_line = [ln for ln in navd.log_text().splitlines() if "event loop:" in ln]
     results["event_loop"] = loop_line[0].split("event loop: ", 1)[1] if loop_line else "?"
     m = results["main"]
     rows = [

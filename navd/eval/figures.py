@@ -27,16 +27,9 @@ def _stride(n: int) -> int:
     return max(1, n // _MAX_PLOT_POINTS)
 
 
-def _break_wraps(y: F64, jump: float = 180.0) -> F64:
-    """NaN between samples that jump by more than ``jump`` (yaw wrap) so lines do not cross."""
-    out = y.astype(np.float64).copy()
-    if len(out) > 1:
-        j = np.flatnonzero(np.abs(np.diff(out)) > jump)
-        out = np.insert(out, j + 1, np.nan)
-    return out
-
-
 def _break_t(t: F64, y: F64, jump: float = 180.0) -> tuple[F64, F64]:
+    """``t`` and ``y`` with a NaN between samples that jump by more than ``jump`` (yaw wrap),
+    so lines do not cross the plot."""
     if len(y) < 2:
         return t, y
     j = np.flatnonzero(np.abs(np.diff(y)) > jump)
