@@ -21,7 +21,7 @@ from fixtures.logwriters import (
 )
 
 from navd.cli.replay import main as replay_main
-from navd.io.logs import LogFormatError, LogOptions, read_log
+from navd.io.logs import LogData, LogFormatError, LogOptions, read_log
 from navd.types import GnssSample
 
 
@@ -126,6 +126,24 @@ def _split_increments(src: Source, every: int) -> tuple[np.ndarray, np.ndarray, 
     return t[1:], dt, np.hstack([dth * s, dv * s])
 
 
+def _assert_split_pairing(data: LogData, src: Source) -> int:
+    """``data`` holds the increments of pairing ``src``'s gyro with its accel at every
+    ``ACC_EVERY``-th sample (``_split_increments``); return how many."""
+    t, dt, inc = _split_increments(src, ACC_EVERY)
+    np.testing.assert_array_equal(data.imu_t_us, t)
+    np.testing.assert_array_equal(data.imu_dt_us, dt)
+    np.testing.assert_allclose(data.imu_inc, inc, rtol=1e-9, atol=1e-12)
+    return len(t)
+
+
+def _assert_instance_one(other: LogData, n: int) -> None:
+    """``other`` holds ``n`` increments of the writers' instance 1 only: 9 rad/s, zero accel."""
+    assert len(other.imu_t_us) == n
+    np.testing.assert_allclose(other.imu_inc[:, :3] / (other.imu_dt_us[:, None] * 1e-6), 9.0,
+                               rtol=1e-6)
+    np.testing.assert_allclose(other.imu_inc[:, 3:], 0.0)
+
+
 @pytest.mark.parametrize("style", ["ACC/GYR", "ACC1/GYR1"])
 def test_dataflash_acc_gyr_streams_pair_at_the_slower_rate(src: Source, tmp_path: Path,
                                                           style: str) -> None:
@@ -139,16 +157,9 @@ def test_dataflash_acc_gyr_streams_pair_at_the_slower_rate(src: Source, tmp_path
     p = tmp_path / "acc.bin"
     write_dataflash(p, src, imu=style)
     data = read_log(p)
-    t, dt, inc = _split_increments(src, ACC_EVERY)
-    np.testing.assert_array_equal(data.imu_t_us, t)
-    np.testing.assert_array_equal(data.imu_dt_us, dt)
-    np.testing.assert_allclose(data.imu_inc, inc, rtol=1e-9, atol=1e-12)
+    count = _assert_split_pairing(data, src)
     assert any("ACC/GYR instance 0" in n and "accel rate" in n for n in data.notes), data.notes
-    other = read_log(p, options=LogOptions(imu_instance=1))
-    assert len(other.imu_t_us) == len(t)
-    np.testing.assert_allclose(other.imu_inc[:, :3] / (other.imu_dt_us[:, None] * 1e-6), 9.0,
-                               rtol=1e-6)
-    np.testing.assert_allclose(other.imu_inc[:, 3:], 0.0)
+    _assert_instance_one(read_log(p, options=LogOptions(imu_instance=1)), count)
 
 
 def test_ulog_split_accel_gyro_topics_and_instance_choice(src: Source, tmp_path: Path) -> None:
@@ -161,17 +172,10 @@ def test_ulog_split_accel_gyro_topics_and_instance_choice(src: Source, tmp_path:
     p = tmp_path / "split.ulg"
     write_ulog(p, src, imu_topics="split")
     data = read_log(p)
-    t, dt, inc = _split_increments(src, ACC_EVERY)
-    np.testing.assert_array_equal(data.imu_t_us, t)
-    np.testing.assert_array_equal(data.imu_dt_us, dt)
-    np.testing.assert_allclose(data.imu_inc, inc, rtol=1e-9, atol=1e-12)
+    count = _assert_split_pairing(data, src)
     assert any("multi_id 0" in n and "accel rate" in n for n in data.notes), data.notes
     assert len(data.gnss_t_us) == len(src.gnss)
-    other = read_log(p, options=LogOptions(imu_instance=1))
-    assert len(other.imu_t_us) == len(t)
-    np.testing.assert_allclose(other.imu_inc[:, :3] / (other.imu_dt_us[:, None] * 1e-6), 9.0,
-                               rtol=1e-6)
-    np.testing.assert_allclose(other.imu_inc[:, 3:], 0.0)
+    _assert_instance_one(read_log(p, options=LogOptions(imu_instance=1)), count)
 
 
 def test_ulog_sensor_combined_is_instance_0_other_instances_from_split_topics(
