@@ -103,6 +103,12 @@ class NavSolution:
     heading_aligned: bool
     rate_b: tuple[float, float, float]
 
+    def heading_good(self, max_sd_rad: float) -> bool:
+        """The heading is initialised *and* its 1-sigma is within ``max_sd_rad``: what an
+        output that says "aligned" means (a first course initialises the heading with the
+        wide start-up sigma; the daemon passes ``[init] aligned_sd_deg``)."""
+        return self.heading_aligned and self.att_sd_rad[2] <= max_sd_rad
+
 
 @dataclass(frozen=True, slots=True)
 class PolSample:

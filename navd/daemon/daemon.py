@@ -593,10 +593,11 @@ class Daemon:
         est = self.est
         if not (est.heading_aligned and est.initialized):
             return "heading not aligned"
-        sd = est.solution().att_sd_rad[2]
-        if sd <= self.cfg.nav.estimator.init.aligned_sd:
+        sol = est.solution()
+        if sol.heading_good(self.cfg.nav.estimator.init.aligned_sd):
             return "heading aligned"
-        return f"heading coarse (sigma {math.degrees(sd):.1f} deg, not yet aligned)"
+        return (f"heading coarse (sigma {math.degrees(sol.att_sd_rad[2]):.1f} deg, "
+                "not yet aligned)")
 
     def status_line(self) -> str:
         head, lat = self._headline()

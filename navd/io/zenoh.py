@@ -97,14 +97,13 @@ def attitude_payload(sol: NavSolution, aligned_sd_rad: float = math.inf) -> dict
     ``heading_initialised`` keeps the estimator's flag.
     """
     d = math.degrees
-    sd_yaw = sol.att_sd_rad[2]
     return {
         "schema": SCHEMA_VERSION,
         "t_us": sol.t_us,
         "quat_wxyz": [_num(v) for v in sol.quat_nb],
         "euler_deg": [_num(d(sol.roll_rad)), _num(d(sol.pitch_rad)), _num(d(sol.yaw_rad))],
         "sigma_deg": [_num(d(v)) for v in sol.att_sd_rad],
-        "aligned": bool(sol.heading_aligned and sd_yaw <= aligned_sd_rad),
+        "aligned": sol.heading_good(aligned_sd_rad),
         "heading_initialised": bool(sol.heading_aligned),
     }
 
