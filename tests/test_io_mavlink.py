@@ -739,3 +739,21 @@ def test_tcp_link_reopens_after_the_peer_drops_and_returns(
 
     asyncio.run(main())
     assert "reopen failed" in caplog.text and "reopened" in caplog.text
+
+
+def test_polarization_time_beyond_two_to_the_53_is_refused_like_other_samples() -> None:
+    """GIVEN the decoder with the private polarization message enabled,
+    WHEN a CRC-valid NAVD_SKY_POLARIZATION frame carries time_usec = 2**63 + 1 (a value a
+    recording cannot hold) and then one with a plausible time,
+    THEN the first is refused and counted as pol_time_out_of_range, as IMU and GNSS
+    samples are, and the second is decoded."""
+    from firmware_sim.polarization import encode_mavlink
+
+    dec = MavlinkDecoder(MavlinkInputConfig(polarization=True))
+    gps_us = 1_300_000_000 * 10**6  # a GPS time in 2021
+    bad = encode_mavlink(2**63 + 1, gps_us, 1.0, 0.5)
+    good = encode_mavlink(5_000_000, gps_us, 1.0, 0.5, seq=1)
+    assert dec.feed_datagram(bad, 0) == []
+    assert dec.counters["pol_time_out_of_range"] == 1
+    out = dec.feed_datagram(good, 0)
+    assert len(out) == 1 and out[0].t_us == 5_000_000 and dec.counters["pol_ok"] == 1

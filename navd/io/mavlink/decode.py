@@ -285,6 +285,9 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
             if self.config.allow is not None and src not in self.config.allow:
                 self._reject("not_allowed", "source sysid=%d compid=%d", *src)
                 return None
+            # the same time checks as every other sample (pol_wire already chose the clock)
+            if self._stamp(s.t_us, recv_t_us, "pol") is None:
+                return None
             self.counters.inc("pol_ok")
             return s
         for reason in why:
