@@ -32,9 +32,9 @@ from typing import TYPE_CHECKING, Any
 from navd.config.aiding import DovSection, NavConfig
 from navd.core.aiding.dov import DovField, DovGridError
 from navd.core.aiding.polarization import build_polarization
-from navd.core.estimator import Estimator, Sample
+from navd.core.estimator import Estimator
 from navd.io.dov_grid import load_from_settings
-from navd.types import GnssSample, ImuSample, NavSolution
+from navd.types import GnssSample, ImuSample, NavSolution, Sample
 
 if TYPE_CHECKING:
     from navd.io.logs import AidingWriter

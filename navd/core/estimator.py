@@ -46,14 +46,12 @@ from navd.core.aiding.gnss import GnssAiding
 from navd.core.earth import geodetic_to_ecef, radii
 from navd.core.output import attitude_outputs
 from navd.core.rotation import euler_to_mat_into
-from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample
+from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample, Sample
 
 if TYPE_CHECKING:
     from navd.core.aiding.polarization import PolarizationAiding
 
-__all__ = ["DovField", "Estimator", "Sample"]
-
-Sample = ImuSample | GnssSample | PolSample
+__all__ = ["DovField", "Estimator"]
 
 _WAIT = 0
 _NAV = 1
@@ -95,6 +93,8 @@ class Estimator:
         self.cfg = config or EstimatorConfig()
         self._gnss_delay_us = round(self.cfg.gnss.delay * 1e6)
         c = self.cfg
+        self._max_imu_gap_us = c.filter.max_imu_gap * 1e6
+        self._max_gnss_age_us = c.gnss.max_age * 1e6
         self._buf = np.zeros(st.SIZE)
         v = st.StateViews(self._buf)
         self._v = v
@@ -315,7 +315,7 @@ class Estimator:
     # ------------------------------------------------------------------ IMU
     def _push_imu(self, s: ImuSample) -> bool:
         cnt = self.counters
-        if s.dt_us <= 0 or s.dt_us > self.cfg.filter.max_imu_gap * 1e6:
+        if s.dt_us <= 0 or s.dt_us > self._max_imu_gap_us:
             cnt["imu_bad_dt"] += 1
             return False
         dt = s.dt_us * 1e-6
@@ -337,7 +337,7 @@ class Estimator:
                     self._reset_state("reinit_time_jump")
                 return False
             gap = s.t_us - self.t_us - s.dt_us
-            if gap > self.cfg.filter.max_imu_gap * 1e6:
+            if gap > self._max_imu_gap_us:
                 cnt["imu_gap"] += 1
                 if gap > 1_000_000:
                     cnt["reinit_time_jump"] += 1
@@ -504,7 +504,7 @@ class Estimator:
         """Whether a fix while navigating is still within reach of the history ring."""
         cnt = self.counters
         age_us = self.t_us - g.t_us
-        if age_us > self.cfg.gnss.max_age * 1e6:
+        if age_us > self._max_gnss_age_us:
             cnt["gnss_too_old"] += 1
             return False
         # A fix older than the newest IMU sample is linearised about the state at its own
@@ -544,10 +544,6 @@ class Estimator:
     def course_status(self) -> str:
         """Why GNSS course is or is not used as heading now (status ``course_update``)."""
         return self.gnss.course.status
-
-    @property
-    def last_course_used_t_us(self) -> int:
-        return self.gnss.course.last_used_t_us
 
     @property
     def dov_field(self) -> DovField | None:

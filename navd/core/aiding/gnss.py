@@ -114,8 +114,8 @@ class GnssAiding:
                 est.restart("reinit_gnss_jump")
             return False
         self._absurd_in_row = 0
-        self.hold = _YAW if self._heading_hold(est, g) else -1
         has_vel_h = math.isfinite(g.vel_n) and math.isfinite(g.vel_e)
+        self.hold = _YAW if has_vel_h and self._heading_hold(est, g) else -1
         if has_vel_h:
             self.course.note_not_tried(est, g)
 
@@ -140,7 +140,8 @@ class GnssAiding:
         return True
 
     def _heading_hold(self, est: Estimator, g: GnssSample) -> bool:
-        """Whether this epoch's fixes must leave the heading (phi_D) alone.
+        """Whether this epoch's fixes (with horizontal velocity) must leave the heading
+        (phi_D) alone.
 
         At rest the heading is unobservable to a gyro that cannot gyrocompass: the fixes
         see only east-gyro-bias + earth-rate x heading, as one number.  An EKF nevertheless
@@ -152,8 +153,6 @@ class GnssAiding:
         polarization) still correct it.
         """
         if not self.hold_enabled:
-            return False
-        if not (math.isfinite(g.vel_n) and math.isfinite(g.vel_e)):
             return False
         r = est.rate_b
         if (math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])

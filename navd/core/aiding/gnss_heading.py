@@ -36,7 +36,6 @@ from navd.core.aiding.base import (
     INNOV_FLAG,
     INNOV_NIS,
     INNOV_VEL,
-    NOT_TRIED,
     REJECTED,
     SINGULAR,
 )
@@ -125,7 +124,6 @@ class CourseHeading:
     Attributes:
         status: why the course is or is not used now (the status record's
             ``course_update``).
-        last_used_t_us: time of validity of the last course update applied, -1 before.
     """
 
     def __init__(self, cfg: EstimatorConfig) -> None:
@@ -142,7 +140,6 @@ class CourseHeading:
         self.sd_beta = (c.heading.sideslip_sd if c.filter.profile == "ground"
                         else c.heading.crab_sd)
         self.status = "off"
-        self.last_used_t_us = -1
         self.rejects = 0
         # [sideslip per lateral acceleration (rad per m/s^2), its variance, the last usable
         # epoch's lateral acceleration (m/s^2)]: course = heading + gain * a_lat for a car
@@ -274,7 +271,6 @@ class CourseHeading:
                 rec[INNOV_FLAG] = ACCEPTED
                 cnt["course_accepted"] += 1
                 self.rejects = 0
-                self.last_used_t_us = g.t_us
                 return
             # the joint block failed: fall back to velocity alone
             rec[INNOV_FLAG] = REJECTED if nis != -math.inf else SINGULAR
@@ -312,10 +308,10 @@ class CourseHeading:
         self._slip[1] = (1.0 - gain * h) * pk + _SLIP_Q
 
     def note_not_tried(self, est: Estimator, g: GnssSample) -> None:
-        """Course record before the epoch's updates: not tried, with wrap(psi_hat - chi) of
-        the raw GNSS velocity for monitoring (overwritten when the course is tried)."""
+        """Course record before the epoch's updates (``Estimator.push`` has marked it not
+        tried): wrap(psi_hat - chi) of the raw GNSS velocity for monitoring (overwritten when
+        the course is tried)."""
         rec = est.innov[INNOV_COURSE]
-        rec[INNOV_FLAG] = NOT_TRIED
         if math.hypot(g.vel_n, g.vel_e) >= 1.0:
             m = est.mat_nb
             yaw = math.atan2(m[1, 0], m[0, 0])

@@ -123,8 +123,6 @@ class PolarizationAiding:
 
     def __init__(self, cfg: PolarizationSection) -> None:
         """``cfg``: the validated ``[polarization]`` section (SI; :mod:`navd.config.aiding`)."""
-        self.cfg = cfg
-        self.mount_rpy_rad = cfg.mount_rpy
         self.sigma = cfg.sigma
         self.dop_min = cfg.dop_min
         self.sigma_dop_ref = cfg.sigma_dop_ref
@@ -133,10 +131,9 @@ class PolarizationAiding:
         self.gate = chi2_quantile(cfg.gate_prob, 1)
         self.max_age_us = cfg.max_age * 1e6
         mat_bs = np.zeros((3, 3))
-        euler_to_mat_into(mat_bs, *self.mount_rpy_rad)  # C_s^b
+        euler_to_mat_into(mat_bs, *cfg.mount_rpy)  # C_s^b
         self.mat_sb = np.ascontiguousarray(mat_bs.T)  # C_b^s
         self.s_n = np.zeros(3)
-        self.last_nis = math.nan
         self.last_innovation = math.nan
 
     # ------------------------------------------------------------------ the aid
@@ -203,9 +200,9 @@ class PolarizationAiding:
         est.meas_z[0] = z
         est.meas_R[0, 0] = sd * sd
         self.last_innovation = z
-        self.last_nis = est.fuse_block(1, self.gate, "pol")
-        est.record_innovation(INNOV_POL, 0, 1, self.last_nis)
-        return self.last_nis >= 0.0
+        nis = est.fuse_block(1, self.gate, "pol")
+        est.record_innovation(INNOV_POL, 0, 1, nis)
+        return nis >= 0.0
 
 
 def build_polarization(cfg: PolarizationSection | None) -> PolarizationAiding | None:
