@@ -120,3 +120,27 @@ def test_max_lockout_zero_disables_the_reset(run: SimRun) -> None:
     pos, _ = _drive(est, run, shift_after_us=40_000_000, shift_m=500.0)
     assert est.counters["reset_lockout_pos"] == 0
     assert _longest_refusal_s(pos) > 40.0
+
+
+def test_one_outlier_after_an_outage_is_not_a_lockout(run: SimRun) -> None:
+    """GIVEN the default config and a 10 s GNSS outage at t = 40 s (a tunnel),
+    WHEN the first fix after it is 500 m off (multipath) and the following ones are good,
+    THEN that fix is refused but nothing is reset: one refusal is an outlier however long
+    the gap before it, and the good fixes are accepted."""
+    est = build_estimator(load_config(None, []))
+    pos_flags: list[tuple[int, float]] = []
+    first_after: int | None = None
+    for s in run.samples():
+        if isinstance(s, GnssSample):
+            if 40_000_000 <= s.t_us < 50_000_000:
+                continue
+            if s.t_us >= 50_000_000 and first_after is None:
+                first_after = s.t_us
+                s = dataclasses.replace(s, lat_rad=s.lat_rad + 500.0 / R_EARTH,
+                                        pos_ecef_m=None)
+        est.push(s)
+        if isinstance(s, GnssSample) and est.initialized:
+            pos_flags.append((s.t_us, float(est.innov[INNOV_POS, INNOV_FLAG])))
+    assert dict(pos_flags)[first_after] == REJECTED
+    assert est.counters["reset_lockout_pos"] == 0
+    assert [f for t, f in pos_flags if t > first_after][:5] == [ACCEPTED] * 5

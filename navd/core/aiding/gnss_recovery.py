@@ -58,11 +58,13 @@ class LockoutRecovery:
         self._pos_refused_us = -1
         self._vel_refused_us = -1
         self._prev_us = -1  # time of validity of the previous epoch
+        self._prev_gap = 0  # the interval before it, us
 
     def reset(self) -> None:
         self._pos_refused_us = -1
         self._vel_refused_us = -1
         self._prev_us = -1
+        self._prev_gap = 0
 
     def refused_s(self, t_us: int) -> tuple[float, float]:
         """How long position and velocity have been refused at ``t_us`` (s; 0 when the
@@ -75,9 +77,13 @@ class LockoutRecovery:
         """Call once per GNSS epoch after its updates; ``*_sd``: the accuracies used (m,
         m/s); ``t_us``: the fix's time of validity."""
         # The next epoch is expected one interval later: reset at the last epoch before the
-        # refusal would outlast max_lockout, so that no lock-out lasts longer.
-        step = t_us - self._prev_us if self._prev_us >= 0 else 0
+        # refusal would outlast max_lockout, so that no lock-out lasts longer.  The interval
+        # is the shorter of the last two, so the first fix after an outage (a tunnel) does
+        # not count its gap as refusal time.
+        gap = t_us - self._prev_us if self._prev_us >= 0 else 0
+        step = min(gap, self._prev_gap) if self._prev_gap > 0 else gap
         self._prev_us = t_us
+        self._prev_gap = gap
         r = est.innov
         self._pos_refused_us = self._watch(r[INNOV_POS, INNOV_FLAG], self._pos_refused_us,
                                            t_us, step)
@@ -98,10 +104,13 @@ class LockoutRecovery:
             return -1
         if flag == NOT_TRIED:
             return refused_us
-        start = refused_us if refused_us >= 0 else t_us
-        if self._max_us > 0.0 and t_us - start + step >= self._max_us:
+        if refused_us < 0:
+            # one refused fix is an outlier until the next one agrees with it, however far
+            # apart the fixes are
+            return t_us
+        if self._max_us > 0.0 and t_us - refused_us + step >= self._max_us:
             return -2
-        return start
+        return refused_us
 
     def _reset_position(self, est: Estimator, h_sd: float, v_sd: float) -> None:
         z = est.innov[INNOV_POS]
