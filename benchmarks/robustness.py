@@ -58,11 +58,10 @@ from firmware_sim.score import Score, score_run
 from navd.config import load_config
 from navd.core.estimator import Estimator
 from navd.pipeline import build_estimator, solutions
-from navd.types import GnssSample, ImuSample, PolSample
+from navd.types import GnssSample, Sample
 from navd.units import DEG, RAD2DEG
 
 Arr = npt.NDArray[np.float64]
-Sample = ImuSample | GnssSample | PolSample
 
 DPH = DEG / 3600.0   # deg/h in rad/s
 MG = 9.80665e-3      # mg in m/s^2

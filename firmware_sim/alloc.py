@@ -8,9 +8,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 from navd.core.estimator import Estimator
-from navd.types import GnssSample, ImuSample, PolSample
-
-Sample = ImuSample | GnssSample | PolSample
+from navd.types import ImuSample, Sample
 
 
 @dataclass

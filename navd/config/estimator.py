@@ -90,7 +90,7 @@ class HeadingSection:
     align_speed: float = _f(5.0, "mps")
     max_reverse_speed: float = _f(4.0, "mps")
     # at rest with a gyro too poor to gyrocompass, position/velocity fixes must not move the
-    # heading (Estimator._heading_hold says why)
+    # heading (GnssAiding._heading_hold in navd/core/aiding/gnss.py says why)
     hold_static: bool = _f(True)
     hold_max_speed: float = _f(0.3, "mps")
 

@@ -19,9 +19,8 @@ from collections.abc import Callable, Hashable
 
 from navd.core.plausible import Limits, imu_reason
 from navd.diag import Counters, RateLimitedLog
-from navd.types import GnssSample, ImuSample, PolSample
+from navd.types import ImuSample, Sample
 
-Sample = ImuSample | GnssSample | PolSample
 SampleCallback = Callable[[Sample], None]
 
 __all__ = ["Limits", "RateIntegrator", "Rejector", "Sample", "SampleCallback", "all_finite",

@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any, BinaryIO, TextIO
 
 from navd import __version__
-from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample
+from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample, Sample
 
 __all__ = [
     "MAGIC",
@@ -58,7 +58,6 @@ _POL = struct.Struct("<q3d")
 _HAS_POS = 1
 _HAS_VEL = 2
 
-Sample = ImuSample | GnssSample | PolSample
 
 
 class RecordingError(ValueError):
