@@ -639,3 +639,75 @@ def test_daemon_wires_the_ros2_sink_to_its_zenoh_session() -> None:
         asyncio.run(go())
     finally:
         sub.close()  # type: ignore[no-untyped-call]
+
+
+def test_a_ros2_subscriber_gets_navd_heading_from_a_simulated_drive() -> None:
+    """GIVEN the daemon with [ros2] on a loopback Zenoh endpoint, a second session subscribed
+    to the Imu key, and 60 s of the simulated car drive pushed through the daemon's
+    estimator loop (a callback sink at the same rate records the published solutions),
+    WHEN the subscriber decodes each Imu sample with pycdr2 and pairs it with its solution
+    by the attachment's sequence number,
+    THEN most samples arrive, each orientation is the solution's attitude in ENU/FLU, and
+    once the heading variance is below (2 deg)^2 the heading read back from the ROS message
+    (90 deg - ENU yaw) is within 3 sigma (the message's own covariance) of the truth."""
+    from navd.daemon.sinks import CallbackSink
+    from tests.daemon_util import car_run, heading_errors_deg
+
+    run = car_run(60.0)
+    zport, uport = free_port(), free_port()
+    cfg = DaemonConfig.from_dict(load_config(None, [
+        f'zenoh.listen=["tcp/127.0.0.1:{zport}"]', "ros2.enabled=true", "ros2.rate_hz=10",
+        f'mavlink.listen="udpin:127.0.0.1:{uport}"', 'mavlink.send=""',
+        "daemon.warm_up=false", "daemon.queue_size=100000"]))  # the whole drive queued
+    d = Daemon(cfg, handle_signals=False)
+    sols: list[NavSolution] = []
+    key = (f"0/imu/{dds_type_name('sensor_msgs/msg/Imu')}/"
+           f"{TYPE_HASHES['sensor_msgs/msg/Imu']}")
+    got: list[tuple[int, bytes]] = []
+    sub = zenoh.open(_peer(connect=(f"tcp/127.0.0.1:{zport}",)).to_zenoh())
+
+    def on_sample(smp: Any) -> None:
+        seq, _, _ = zext.z_deserialize(tuple[zext.Int64, zext.Int64, bytes], smp.attachment)
+        got.append((seq, smp.payload.to_bytes()))
+
+    async def go() -> None:
+        await d._open()
+        try:
+            d.sinks.append(CallbackSink(sols.append, 10.0))
+            node = next(s for s in d.sinks if isinstance(s, Ros2Sink)).node.token_key
+            deadline = time.monotonic() + 10.0
+            while node not in _tokens(sub, 0) and time.monotonic() < deadline:
+                await asyncio.sleep(0.1)
+            await asyncio.sleep(0.5)  # the subscription reaches the publisher's session
+            for s in run.samples():
+                d.queue.put(0, s)
+            d.queue.close()
+            await d._estimate()
+            await asyncio.sleep(1.0)
+        finally:
+            d._close()
+
+    s_ = sub.declare_subscriber(key, on_sample)
+    try:
+        asyncio.run(go())
+    finally:
+        s_.undeclare()
+        sub.close()  # type: ignore[no-untyped-call]
+    assert len(sols) > 400 and len(got) >= 0.95 * len(sols), (len(got), len(sols))
+    t_us, yaw, sd = [], [], []
+    for seq, data in got:
+        sol = sols[seq - 1]
+        imu = decode("sensor_msgs/msg/Imu", data)
+        o = imu.orientation
+        q = quat_enu_flu(sol.quat_nb)
+        assert (o.w, o.x, o.y, o.z) == pytest.approx(q, abs=1e-12)
+        c = _mat_of((o.w, o.x, o.y, o.z))
+        yaw_enu = math.atan2(c[1, 0], c[0, 0])
+        var = imu.orientation_covariance[8]
+        if var < (2.0 * DEG) ** 2:
+            t_us.append(sol.t_us)
+            yaw.append(math.pi / 2 - yaw_enu)
+            sd.append(math.sqrt(var))
+    assert len(t_us) > 100, "heading never aligned in the drive"
+    err = heading_errors_deg(run, t_us, yaw)
+    assert np.all(np.abs(err) <= 3.0 * np.degrees(sd)), float(np.max(np.abs(err) / np.degrees(sd)))
