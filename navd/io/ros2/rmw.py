@@ -143,7 +143,9 @@ class Ros2Publisher:
         self.token_key = token
         self.gid = entity_gid(token)
         self.seq = 0
-        self._pub = session.declare_publisher(key)
+        # what rmw_zenoh declares for a reliable keep-last publisher (the QoS in the token)
+        self._pub = session.declare_publisher(key, reliability=zenoh.Reliability.RELIABLE,
+                                              congestion_control=zenoh.CongestionControl.DROP)
         try:
             self._token = session.liveliness().declare_token(token)
         except BaseException:
