@@ -26,7 +26,7 @@ from navd.config.estimator import EstimatorConfig
 from navd.config.load import ConfigError, build_section, check, load_config
 from navd.config.load import setting as _f
 from navd.io.mavlink import GNSS_MESSAGES, IMU_MESSAGES, parse_mavlink_url
-from navd.io.ros2.rmw import validate_name, validate_namespace
+from navd.io.ros2.names import validate_name, validate_namespace
 
 __all__ = [
     "RUN_ONLY_SECTIONS",

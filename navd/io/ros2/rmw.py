@@ -34,7 +34,6 @@ development snapshots (key/value attachments).
 from __future__ import annotations
 
 import contextlib
-import re
 import struct
 import time
 from typing import Any
@@ -43,6 +42,7 @@ import xxhash
 import zenoh
 
 from navd.io.ros2.msgdefs import TYPE_HASHES, dds_type_name
+from navd.io.ros2.names import fully_qualified, validate_name, validate_namespace
 
 __all__ = [
     "ADMIN_SPACE",
@@ -64,36 +64,6 @@ __all__ = [
 ADMIN_SPACE = "@ros2_lv"
 DEFAULT_QOS = "::,10:,:,:,,"  # reliable, volatile, keep last 10
 GID_SIZE = 16
-
-_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*\Z")
-
-
-def validate_name(name: str) -> str | None:
-    """Why ``name`` is not a valid ROS 2 node name or topic token, or None."""
-    if not _NAME.match(name):
-        return f"{name!r} is not a ROS name (letters, digits, _; not starting with a digit)"
-    return None
-
-
-def validate_namespace(ns: str) -> str | None:
-    """Why ``ns`` is not an absolute ROS 2 namespace ("/" or "/a/b"), or None."""
-    if ns == "/":
-        return None
-    if not ns.startswith("/") or ns.endswith("/"):
-        return f"namespace {ns!r} must be '/' or start with '/' and not end with '/'"
-    for tok in ns[1:].split("/"):
-        err = validate_name(tok)
-        if err is not None:
-            return f"namespace {ns!r}: {err}"
-    return None
-
-
-def fully_qualified(namespace: str, topic: str) -> str:
-    """A relative topic name under ``namespace``; an absolute one (``/x``) as it is."""
-    if topic.startswith("/"):
-        return topic
-    return f"/{topic}" if namespace == "/" else f"{namespace}/{topic}"
-
 
 def mangle(name: str) -> str:
     """A name as one liveliness key chunk: each ``/`` becomes ``%``."""
