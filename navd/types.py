@@ -6,6 +6,7 @@ Frames and units follow the conventions in :mod:`navd`.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -86,6 +87,8 @@ class NavSolution:
         accel_bias_mps2: estimated accelerometer bias, body FRD, m/s^2.
         heading_aligned: True once heading is initialised from a trusted source.
         rate_b: last bias-compensated angular rate, body FRD, rad/s.
+        pos_sd_m: 1-sigma of the position along (north, east, down), m (NaN: not given).
+        vel_sd_mps: 1-sigma of vel_n along (north, east, down), m/s (NaN: not given).
     """
 
     t_us: int
@@ -102,6 +105,10 @@ class NavSolution:
     accel_bias_mps2: tuple[float, float, float]
     heading_aligned: bool
     rate_b: tuple[float, float, float]
+    # after the fields every producer sets, so solutions made before these existed (tests,
+    # recordings) still construct; a ROS 2 consumer needs them for its covariances
+    pos_sd_m: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    vel_sd_mps: tuple[float, float, float] = (math.nan, math.nan, math.nan)
 
     def heading_good(self, max_sd_rad: float) -> bool:
         """The heading is initialised *and* its 1-sigma is within ``max_sd_rad``: what an

@@ -49,7 +49,7 @@ def test_shipped_config_documents_every_daemon_key_with_the_defaults() -> None:
     doc = tomllib.loads((ROOT / "config" / "navd.toml").read_text())
     c = DaemonConfig.from_dict(doc)
     d = DaemonConfig.from_dict({})
-    for name in ("daemon", "mavlink", "dronecan", "zenoh", "bias_store"):
+    for name in ("daemon", "mavlink", "dronecan", "zenoh", "ros2", "bias_store"):
         assert getattr(c, name) == getattr(d, name), name
         assert set(doc[name]) == set(toml_keys(type(getattr(d, name)))), name
 

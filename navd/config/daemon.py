@@ -1,5 +1,5 @@
 """The daemon's own config sections: ``[daemon]``, ``[mavlink]``, ``[dronecan]``, ``[zenoh]``,
-``[bias_store]``, and :class:`DaemonConfig` (all of ``navd run``'s configuration).
+``[ros2]``, ``[bias_store]``, and :class:`DaemonConfig` (all of ``navd run``'s configuration).
 
 Same builder and naming rule as every section (:mod:`navd.config.load`): the TOML key carries
 the unit (``status_period_s``, ``attitude_rate_hz``), the attribute drops it and holds the SI
@@ -26,6 +26,7 @@ from navd.config.estimator import EstimatorConfig
 from navd.config.load import ConfigError, build_section, check, load_config
 from navd.config.load import setting as _f
 from navd.io.mavlink import GNSS_MESSAGES, IMU_MESSAGES, parse_mavlink_url
+from navd.io.ros2.names import validate_name, validate_namespace
 
 __all__ = [
     "RUN_ONLY_SECTIONS",
@@ -35,6 +36,7 @@ __all__ = [
     "DaemonSection",
     "DronecanSection",
     "MavlinkSection",
+    "Ros2Section",
     "ZenohSection",
     "load_daemon_config",
 ]
@@ -181,6 +183,34 @@ class ZenohSection:
 
 
 @dataclass(frozen=True)
+class Ros2Section:
+    """``[ros2]``: ROS 2 topics over the [zenoh] session, as an rmw_zenoh node publishes them
+    (docs/interfaces.md)."""
+
+    enabled: bool = _f(False)
+    domain_id: int = _f(0)  # ROS_DOMAIN_ID: the first chunk of every key expression
+    namespace: str = _f("/")  # absolute: "/" or "/robot1"
+    node_name: str = _f("navd")
+    frame_id: str = _f("base_link")  # body frame: Imu, NavSatFix, Odometry child frame
+    world_frame_id: str = _f("map")  # Odometry's frame: local ENU, origin at the first fix
+    rate: float = _f(50.0, "hz")  # Imu, NavSatFix, Odometry per second of sensor time
+    diagnostics_period: float = _f(1.0, "s")  # heading status on /diagnostics (sensor time)
+
+    def validate(self) -> None:
+        s = "ros2"
+        check(0 <= self.domain_id <= 232, s, "domain_id", "an integer 0..232 (ROS_DOMAIN_ID)")
+        for key, err in (("namespace", validate_namespace(self.namespace)),
+                         ("node_name", validate_name(self.node_name))):
+            if err is not None:
+                raise ConfigError(f"[{s}] {key}: {err}")
+        for key, fid in (("frame_id", self.frame_id), ("world_frame_id", self.world_frame_id)):
+            check(bool(fid) and fid.isprintable(), s, key, "a non-empty frame name")
+        check(0.0 < self.rate <= 1000.0, s, "rate_hz", "a rate in Hz in (0, 1000]")
+        check(self.diagnostics_period > 0.0, s, "diagnostics_period_s",
+              "a number of seconds > 0")
+
+
+@dataclass(frozen=True)
 class BiasStoreSection:
     """``[bias_store]``: learned IMU biases kept between runs (:mod:`navd.daemon.bias_store`)."""
 
@@ -209,6 +239,7 @@ _SECTIONS: dict[str, type[Any]] = {
     "mavlink": MavlinkSection,
     "dronecan": DronecanSection,
     "zenoh": ZenohSection,
+    "ros2": Ros2Section,
     "bias_store": BiasStoreSection,
 }
 # sections that configure `navd run` only (inputs, outputs, the service): a replay reads its
@@ -228,6 +259,7 @@ class DaemonConfig:
     mavlink: MavlinkSection = field(default_factory=MavlinkSection)
     dronecan: DronecanSection = field(default_factory=DronecanSection)
     zenoh: ZenohSection = field(default_factory=ZenohSection)
+    ros2: Ros2Section = field(default_factory=Ros2Section)
     bias_store: BiasStoreSection = field(default_factory=BiasStoreSection)
     nav: NavConfig = field(default_factory=NavConfig)
     tables: dict[str, Any] = field(default_factory=dict)
@@ -258,6 +290,9 @@ class DaemonConfig:
         has_input = (kw["mavlink"].enabled and kw["mavlink"].listen) or kw["dronecan"].enabled
         if need_input and not has_input:
             raise ConfigError("no input: enable [mavlink] (with listen) or [dronecan]")
+        if kw["ros2"].enabled and not kw["zenoh"].enabled:
+            raise ConfigError("[ros2] enabled publishes over the [zenoh] session: enable "
+                              "[zenoh] too")
         return cls(**kw, nav=NavConfig.from_tables(data), tables=data)
 
 

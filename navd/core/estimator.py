@@ -526,6 +526,15 @@ class Estimator:
         bg = self.bias_g
         ba = self.bias_a
         w = self.rate_b
+        P = self.P
+        lat, h = float(self.pos[0]), float(self.pos[2])
+        r_m, r_n = radii(lat)
+        # the position error states are (dL, dlambda, dh): rad, rad, m up -> metres N, E, D
+        pos_sd = (math.sqrt(max(float(P[6, 6]), 0.0)) * (r_m + h),
+                  math.sqrt(max(float(P[7, 7]), 0.0)) * (r_n + h) * math.cos(lat),
+                  math.sqrt(max(float(P[8, 8]), 0.0)))
+        vel_sd = (math.sqrt(max(float(P[3, 3]), 0.0)), math.sqrt(max(float(P[4, 4]), 0.0)),
+                  math.sqrt(max(float(P[5, 5]), 0.0)))
         return NavSolution(
             t_us=self.t_us, quat_nb=(qw, qx, qy, qz), roll_rad=r, pitch_rad=p, yaw_rad=y,
             lat_rad=float(self.pos[0]), lon_rad=float(self.pos[1]), alt_m=float(self.pos[2]),
@@ -533,7 +542,8 @@ class Estimator:
             gyro_bias_rps=(float(bg[0]), float(bg[1]), float(bg[2])),
             accel_bias_mps2=(float(ba[0]), float(ba[1]), float(ba[2])),
             heading_aligned=self.heading_aligned,
-            rate_b=(float(w[0]), float(w[1]), float(w[2])))
+            rate_b=(float(w[0]), float(w[1]), float(w[2])), pos_sd_m=pos_sd,
+            vel_sd_mps=vel_sd)
 
     @property
     def heading_held(self) -> bool:

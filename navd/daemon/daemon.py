@@ -46,6 +46,7 @@ from navd.daemon.sinks import (
     MAV_STATE_STANDBY,
     DronecanSink,
     MavlinkSink,
+    Ros2Sink,
     Sink,
     ZenohSink,
 )
@@ -275,6 +276,9 @@ class Daemon:
                                       d.solution_rate))
         if self.zenoh_sink is not None:
             sinks.append(self.zenoh_sink)
+            if c.ros2.enabled:  # config validation: [ros2] needs [zenoh]
+                sinks.append(Ros2Sink(self.zenoh_sink.publisher.session, c.ros2,
+                                      c.nav.estimator.init.aligned_sd))
         self.sinks = sinks + self._extra
         if self.record_path:
             rate = 1e6 / self.sinks[0].schedule.period_us if self.sinks else m.attitude_rate
@@ -304,6 +308,10 @@ class Daemon:
                 status = f" + {status_key(c.zenoh.vehicle)}" if c.zenoh.status else ""
                 out.append(f"zenoh {attitude_key(c.zenoh.vehicle)} {hz:g} Hz{status} "
                            f"({ends})")
+            elif isinstance(sink, Ros2Sink):
+                topics = " ".join(p.topic for p in sink.pubs.values())
+                out.append(f"ros2 node {sink.node.namespace.rstrip('/')}/{sink.node.node} "
+                           f"(domain {c.ros2.domain_id}) {topics} {hz:g} Hz")
             elif isinstance(sink, DronecanSink):
                 out.append(f"dronecan Solution {hz:g} Hz as node {c.dronecan.node_id} on "
                            f"{c.dronecan.interface}:{c.dronecan.channel}")

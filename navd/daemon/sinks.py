@@ -3,25 +3,35 @@
 
 MavlinkSink    ATTITUDE + ATTITUDE_QUATERNION (+ GLOBAL_POSITION_INT), HEARTBEAT task
 ZenohSink      navd/<vehicle>/attitude per output, navd/<vehicle>/status from the daemon
+Ros2Sink       ROS 2 Imu, NavSatFix, Odometry and heading diagnostics on the Zenoh session
 DronecanSink   uavcan.equipment.ahrs.Solution on the input bus
 CallbackSink   hands solutions to a function (tests, embedding)
 """
 
 from __future__ import annotations
 
+import logging
 import math
+import time
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from navd.diag import Counters, RateLimitedLog
 from navd.io.dronecan import DronecanEncoder, DronecanLink
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink, MavlinkSender
 from navd.io.zenoh import ZenohPublisher
 from navd.pipeline import OutputSchedule
 from navd.types import NavSolution
 
-__all__ = ["CallbackSink", "DronecanSink", "LatencyStats", "MavlinkSink", "Sink", "ZenohSink"]
+if TYPE_CHECKING:
+    from navd.config.daemon import Ros2Section
+
+__all__ = ["CallbackSink", "DronecanSink", "LatencyStats", "MavlinkSink", "Ros2Sink", "Sink",
+           "ZenohSink"]
+
+_log = logging.getLogger(__name__)
 
 
 class LatencyStats:
@@ -138,6 +148,77 @@ class ZenohSink(Sink):
 
     def close(self) -> None:
         self.publisher.close()
+
+
+# ROS 2 topics, relative to [ros2] namespace except the absolute /diagnostics (where
+# diagnostic aggregators listen): (name, type)
+ROS2_TOPICS: dict[str, tuple[str, str]] = {
+    "imu": ("imu", "sensor_msgs/msg/Imu"),
+    "fix": ("fix", "sensor_msgs/msg/NavSatFix"),
+    "odom": ("odom", "nav_msgs/msg/Odometry"),
+    "diagnostics": ("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray"),
+}
+
+
+class Ros2Sink(Sink):
+    """Imu, NavSatFix and Odometry per output and the heading DiagnosticArray every
+    ``diagnostics_period`` of sensor time, published as node ``[ros2] node_name`` on an open
+    Zenoh session (the [zenoh] sink's).  Header stamps and attachment timestamps are the
+    host clock at publish (ROS time), the solution's sensor time is in the diagnostics."""
+
+    name = "ros2"
+
+    def __init__(self, session: Any, cfg: Ros2Section,
+                 aligned_sd_rad: float = math.inf) -> None:
+        # imported here: a daemon without [ros2] never loads the serialiser
+        from navd.io.ros2.messages import MessageBuilder
+        from navd.io.ros2.rmw import Ros2Node
+
+        super().__init__(cfg.rate)
+        self.cfg = cfg
+        self.aligned_sd_rad = aligned_sd_rad
+        self.stats = Counters()
+        self._rlog = RateLimitedLog(_log, 5.0)
+        self.builder = MessageBuilder(cfg.frame_id, cfg.world_frame_id)
+        self.node = Ros2Node(session, domain_id=cfg.domain_id, namespace=cfg.namespace,
+                             node=cfg.node_name)
+        try:
+            self.pubs = {k: self.node.publisher(topic, typ)
+                         for k, (topic, typ) in ROS2_TOPICS.items()}
+        except BaseException:
+            self.node.close()
+            raise
+        self._diag_period_us = max(1, round(cfg.diagnostics_period * 1e6))
+        self._diag_due_us: int | None = None
+
+    def _send(self, kind: str, msg: Any) -> None:
+        import zenoh
+
+        try:
+            self.pubs[kind].put(self.builder.serialize(msg))
+        except zenoh.ZError as exc:
+            self.stats.inc(f"{kind}_put_error")
+            self._rlog.warn(f"ros2_{kind}", "ros2: put %s failed: %s", kind, exc)
+            return
+        self.stats.inc(f"{kind}_sent")
+
+    def publish(self, sol: NavSolution) -> None:
+        stamp = time.time_ns()
+        b = self.builder
+        self._send("imu", b.imu(sol, stamp))
+        self._send("fix", b.navsatfix(sol, stamp))
+        self._send("odom", b.odometry(sol, stamp))
+        if self._diag_due_us is None or sol.t_us >= self._diag_due_us:
+            self._diag_due_us = sol.t_us + self._diag_period_us
+            self._send("diagnostics", b.diagnostics(sol, stamp, self.aligned_sd_rad,
+                                                    self.cfg.node_name))
+        self.published += 1
+
+    def counters(self) -> dict[str, int]:
+        return {**self.stats.snapshot(), "published": self.published}
+
+    def close(self) -> None:
+        self.node.close()
 
 
 class DronecanSink(Sink):

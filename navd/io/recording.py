@@ -213,7 +213,10 @@ class SolutionJsonlWriter:
             "lon_rad": s.lon_rad, "alt_m": s.alt_m, "vel_n": s.vel_n,
             "att_sd_rad": s.att_sd_rad, "gyro_bias_rps": s.gyro_bias_rps,
             "accel_bias_mps2": s.accel_bias_mps2, "heading_aligned": s.heading_aligned,
-            "rate_b": s.rate_b}) + "\n")
+            "rate_b": s.rate_b, "pos_sd_m": s.pos_sd_m, "vel_sd_mps": s.vel_sd_mps}) + "\n")
+
+
+_NAN3 = (math.nan, math.nan, math.nan)  # files written before the sigmas were recorded
 
 
 def _t3(v: Any) -> tuple[float, float, float]:
@@ -233,5 +236,6 @@ def read_solutions_jsonl(path: str | Path) -> list[NavSolution]:
                 lon_rad=float(d["lon_rad"]), alt_m=float(d["alt_m"]), vel_n=_t3(d["vel_n"]),
                 att_sd_rad=_t3(d["att_sd_rad"]), gyro_bias_rps=_t3(d["gyro_bias_rps"]),
                 accel_bias_mps2=_t3(d["accel_bias_mps2"]),
-                heading_aligned=bool(d["heading_aligned"]), rate_b=_t3(d["rate_b"])))
+                heading_aligned=bool(d["heading_aligned"]), rate_b=_t3(d["rate_b"]),
+                pos_sd_m=_t3(d.get("pos_sd_m", _NAN3)), vel_sd_mps=_t3(d.get("vel_sd_mps", _NAN3))))
     return out

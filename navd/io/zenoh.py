@@ -142,6 +142,13 @@ class ZenohPublisher:
             _close_session(self._session)
             raise
 
+    @property
+    def session(self) -> Any:
+        """The open Zenoh session, for other outputs that share it (the [ros2] sink)."""
+        if self._session is None:
+            raise RuntimeError("zenoh session is closed")
+        return self._session
+
     def publish_attitude(self, sol: NavSolution, aligned_sd_rad: float = math.inf) -> None:
         self._put(self._att, attitude_payload(sol, aligned_sd_rad), "attitude")
 
