@@ -1,5 +1,6 @@
-"""The daemon's own config sections: ``[daemon]``, ``[mavlink]``, ``[dronecan]``, ``[zenoh]``,
-``[ros2]``, ``[bias_store]``, and :class:`DaemonConfig` (all of ``navd run``'s configuration).
+"""The daemon's own config sections: ``[daemon]``, ``[mavlink]``, ``[autopilot]``,
+``[dronecan]``, ``[zenoh]``, ``[ros2]``, ``[bias_store]``, and :class:`DaemonConfig` (all of
+``navd run``'s configuration).
 
 Same builder and naming rule as every section (:mod:`navd.config.load`): the TOML key carries
 the unit (``status_period_s``, ``attitude_rate_hz``), the attribute drops it and holds the SI
@@ -31,6 +32,7 @@ from navd.io.ros2.names import validate_name, validate_namespace
 __all__ = [
     "RUN_ONLY_SECTIONS",
     "ZENOH_BAD_CHUNK_CHARS",
+    "AutopilotSection",
     "BiasStoreSection",
     "DaemonConfig",
     "DaemonSection",
@@ -132,6 +134,39 @@ class MavlinkSection:
         check(self.raw_gyro >= 0.0 and self.raw_accel >= 0.0, s,
               "raw_*_per_lsb", "a scale >= 0 (0 = RAW_IMU not usable)")
         check(self.uere > 0.0, s, "uere_m", "a number of metres > 0")
+
+
+@dataclass(frozen=True)
+class AutopilotSection:
+    """``[autopilot]``: navd as a GPS / heading source for an autopilot, on the ``[mavlink]``
+    send link (docs/autopilot.md).  Everything is off by default."""
+
+    gps_input: bool = _f(False)  # GPS_INPUT with navd's position, velocity and heading (yaw)
+    gps_input_rate: float = _f(5.0, "hz")  # per second of sensor time
+    max_gnss_age: float = _f(1.0, "s")  # 3D fix only while a GNSS fix was used this recently
+    heading_reset: bool = _f(False)  # COMMAND_LONG MAV_CMD_EXTERNAL_ATTITUDE_ESTIMATE (PX4)
+    heading_reset_min_interval: float = _f(10.0, "s")  # at most one command per interval
+    heading_reset_period: float = _f(0.0, "s")  # also repeat this often while aligned; 0 = no
+    target_sysid: int = _f(1)  # the autopilot that gets the command
+    target_compid: int = _f(1)  # 1 = MAV_COMP_ID_AUTOPILOT1
+    estimator_status: bool = _f(False)  # ESTIMATOR_STATUS with each GPS_INPUT (or at its rate)
+
+    @property
+    def any(self) -> bool:
+        return self.gps_input or self.heading_reset or self.estimator_status
+
+    def validate(self) -> None:
+        s = "autopilot"
+        check(0.0 < self.gps_input_rate <= 50.0, s, "gps_input_rate_hz",
+              "a rate in Hz in (0, 50]")
+        check(self.max_gnss_age > 0.0, s, "max_gnss_age_s", "a number of seconds > 0")
+        check(self.heading_reset_min_interval >= 1.0, s, "heading_reset_min_interval_s",
+              "a number of seconds >= 1 (the autopilot resets its heading on each command)")
+        check(self.heading_reset_period == 0.0
+              or self.heading_reset_period >= self.heading_reset_min_interval, s,
+              "heading_reset_period_s", "0 or at least heading_reset_min_interval_s")
+        check(1 <= self.target_sysid <= 255 and 0 <= self.target_compid <= 255, s,
+              "target_sysid/target_compid", "1..255 / 0..255")
 
 
 @dataclass(frozen=True)
@@ -237,6 +272,7 @@ class BiasStoreSection:
 _SECTIONS: dict[str, type[Any]] = {
     "daemon": DaemonSection,
     "mavlink": MavlinkSection,
+    "autopilot": AutopilotSection,
     "dronecan": DronecanSection,
     "zenoh": ZenohSection,
     "ros2": Ros2Section,
@@ -257,6 +293,7 @@ class DaemonConfig:
 
     daemon: DaemonSection = field(default_factory=DaemonSection)
     mavlink: MavlinkSection = field(default_factory=MavlinkSection)
+    autopilot: AutopilotSection = field(default_factory=AutopilotSection)
     dronecan: DronecanSection = field(default_factory=DronecanSection)
     zenoh: ZenohSection = field(default_factory=ZenohSection)
     ros2: Ros2Section = field(default_factory=Ros2Section)
@@ -287,6 +324,9 @@ class DaemonConfig:
                               f"{sorted(known)}")
         kw: dict[str, Any] = {name: build_section(sec, name, data.get(name, {}))
                               for name, sec in _SECTIONS.items()}
+        if kw["autopilot"].any and not (kw["mavlink"].enabled and kw["mavlink"].send):
+            raise ConfigError("[autopilot] needs a MAVLink output: [mavlink] enabled with a "
+                              'send link (to the autopilot, often send = "same")')
         has_input = (kw["mavlink"].enabled and kw["mavlink"].listen) or kw["dronecan"].enabled
         if need_input and not has_input:
             raise ConfigError("no input: enable [mavlink] (with listen) or [dronecan]")

@@ -44,6 +44,7 @@ from navd.daemon.sinks import (
     MAV_STATE_ACTIVE,
     MAV_STATE_CRITICAL,
     MAV_STATE_STANDBY,
+    AutopilotSink,
     DronecanSink,
     MavlinkSink,
     Ros2Sink,
@@ -55,6 +56,7 @@ from navd.diag import RateLimitedLog
 from navd.io.common import Sample
 from navd.io.dronecan import DronecanEncoder
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink
+from navd.io.mavlink.autopilot import AutopilotPolicy, HeadingResetSchedule
 from navd.io.recording import RecordingError, RecordingWriter
 from navd.io.zenoh import ZenohPublisher, attitude_key, status_key
 from navd.pipeline import build_estimator, output_instant
@@ -159,6 +161,7 @@ class Daemon:
         self.sources = Sources(cfg, self.queue)
         self.sinks: list[Sink] = []
         self.mavlink_sink: MavlinkSink | None = None
+        self.autopilot_sink: AutopilotSink | None = None
         self.zenoh_sink: ZenohSink | None = None
         self.recorder: RecordingWriter | None = None
         self.record_path = record_path
@@ -265,11 +268,16 @@ class Daemon:
             except Exception as exc:
                 raise StartupError(explain_open_error("mavlink.send", m.send, exc)) from exc
             assert link is not None  # config validation: "same" needs a listen link
+            encoder = MavlinkEncoder(m.sysid, m.compid, m.geoid_sep)
             self.mavlink_sink = MavlinkSink(
-                link, MavlinkEncoder(m.sysid, m.compid, m.geoid_sep), m.attitude_rate,
+                link, encoder, m.attitude_rate,
                 quaternion=m.attitude_quaternion, global_position=m.global_position,
                 own_link=not shared)
+            if c.autopilot.any:
+                self.autopilot_sink = self._autopilot_sink(link, encoder)
         sinks: list[Sink] = [self.mavlink_sink] if self.mavlink_sink is not None else []
+        if self.autopilot_sink is not None:
+            sinks.append(self.autopilot_sink)
         d = c.dronecan
         if d.enabled and d.solution_out and self.sources.dronecan is not None:
             sinks.append(DronecanSink(self.sources.dronecan, DronecanEncoder(d.node_id),
@@ -291,6 +299,17 @@ class Daemon:
             _log.info("recording pushed samples to %s", self.record_path)
         return inputs
 
+    def _autopilot_sink(self, link: MavlinkLink, encoder: MavlinkEncoder) -> AutopilotSink:
+        a, m = self.cfg.autopilot, self.cfg.mavlink
+        policy = AutopilotPolicy(aligned_sd=self.cfg.nav.estimator.init.aligned_sd,
+                                 max_gnss_age_us=round(a.max_gnss_age * 1e6), uere_m=m.uere,
+                                 geoid_sep_m=m.geoid_sep)
+        schedule = (HeadingResetSchedule(a.heading_reset_min_interval, a.heading_reset_period)
+                    if a.heading_reset else None)
+        return AutopilotSink(link, encoder, a.gps_input_rate, policy, gps_input=a.gps_input,
+                             estimator_status=a.estimator_status, heading_reset=schedule,
+                             target=(a.target_sysid, a.target_compid))
+
     def output_destinations(self) -> list[str]:
         """Where each output goes, for the ready line: an operator wiring a consumer needs
         the address and the key, not only the sink's name."""
@@ -302,6 +321,13 @@ class Daemon:
                 dest = (f"the input link {c.mavlink.listen}" if c.mavlink.send == "same"
                         else c.mavlink.send)
                 out.append(f"mavlink ATTITUDE {hz:g} Hz + HEARTBEAT -> {dest}")
+            elif sink is self.autopilot_sink:
+                a = c.autopilot
+                what = [n for n, on in (("GPS_INPUT", a.gps_input),
+                                        ("ESTIMATOR_STATUS", a.estimator_status),
+                                        ("EXTERNAL_ATTITUDE_ESTIMATE", a.heading_reset)) if on]
+                out.append(f"autopilot {' + '.join(what)} {hz:g} Hz -> "
+                           f"{c.mavlink.send} (target {a.target_sysid}/{a.target_compid})")
             elif sink is self.zenoh_sink:
                 ends = ", ".join([*(f"listen {e}" for e in c.zenoh.listen),
                                   *(f"connect {e}" for e in c.zenoh.connect)]) or "scouting"
