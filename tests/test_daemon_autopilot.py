@@ -26,6 +26,7 @@ from daemon_util import (
     write_config,
 )
 from pymavlink import mavutil
+from test_foxglove_mcap import read_mcap
 
 from navd.config import EstimatorConfig
 from navd.core.estimator import Estimator
@@ -59,7 +60,9 @@ def received(tmp_path_factory: pytest.TempPathFactory) -> Any:
         "zenoh": {"enabled": False},
     })
     notify = NotifySocket()
-    proc = start_daemon(cfg, tmp / "navd.log", {"NOTIFY_SOCKET": notify.path})
+    mcap_path = tmp / "live.mcap"
+    proc = start_daemon(cfg, tmp / "navd.log", {"NOTIFY_SOCKET": notify.path},
+                        ("--mcap", str(mcap_path), "--mcap-rate-hz", "10"))
     out: list[tuple[str, dict[str, Any]]] = []
     stop = threading.Event()
     client = threading.Thread(target=_autopilot, args=(port_out, out, stop), daemon=True)
@@ -80,11 +83,11 @@ def received(tmp_path_factory: pytest.TempPathFactory) -> Any:
         client.join(2)
         notify.close()
     assert rc == 0, (tmp / "navd.log").read_text()[-2000:]
-    return out, (tmp / "navd.log").read_text()
+    return out, (tmp / "navd.log").read_text(), mcap_path
 
 
 def test_gps_input_reaches_the_autopilot_with_yaw_only_once_aligned(received: Any) -> None:
-    out, _ = received
+    out, _, _ = received
     run = car_run(DURATION_S)
     gps = [m for t, m in out if t == "GPS_INPUT"]
     assert len(gps) >= 0.8 * DURATION_S * 5.0  # 5 Hz of sensor time, UDP on loopback
@@ -115,7 +118,7 @@ def test_gps_input_reaches_the_autopilot_with_yaw_only_once_aligned(received: An
 
 
 def test_one_heading_reset_command_when_the_heading_aligns(received: Any) -> None:
-    out, _ = received
+    out, _, _ = received
     cmds = [m for t, m in out if t == "COMMAND_LONG"]
     assert len(cmds) == 1, cmds  # aligned once; no reset on this drive
     c = cmds[0]
@@ -129,7 +132,7 @@ def test_one_heading_reset_command_when_the_heading_aligns(received: Any) -> Non
 
 
 def test_estimator_status_flags_and_log_line(received: Any) -> None:
-    out, log = received
+    out, log, _ = received
     st = [m for t, m in out if t == "ESTIMATOR_STATUS"]
     # ATTITUDE (bit 1) exactly when GPS_INPUT carries a yaw for the same solution
     yaw = {m["time_usec"]: m["yaw"] != 0 for t, m in out if t == "GPS_INPUT"}
@@ -137,3 +140,21 @@ def test_estimator_status_flags_and_log_line(received: Any) -> None:
     assert all(bool(m["flags"] & 1) == yaw[m["time_usec"]] for m in st)
     assert all(m["flags"] & 16 for m in st)  # POS_HORIZ_ABS: GNSS in use throughout
     assert "autopilot GPS_INPUT + ESTIMATOR_STATUS + EXTERNAL_ATTITUDE_ESTIMATE 5 Hz" in log
+
+
+def test_run_mcap_has_the_foxglove_channels_and_the_status(received: Any) -> None:
+    """``navd run --mcap``: closed cleanly at SIGTERM (summary present), the Foxglove
+    channels at 10 Hz of sensor time, the daemon status; log time = host wall clock."""
+    _, _, path = received
+    f = read_mcap(path)
+    assert f["schemas"]["/navd/pose"][:2] == ("foxglove.PoseInFrame", "jsonschema")
+    assert f["schemas"]["/navd/location"][:2] == ("foxglove.LocationFix", "jsonschema")
+    assert f["schemas"]["/navd/status"][0] == "navd.Status"
+    poses = f["messages"]["/navd/pose"]
+    assert 0.8 * DURATION_S * 10 <= len(poses) <= DURATION_S * 10 + 1
+    t = [p["timestamp"]["sec"] * 10**9 + p["timestamp"]["nsec"] for _, p in poses]
+    assert np.all(np.diff(t) == 100_000_000)  # one per 0.1 s of sensor time
+    wall = [lt for lt, _ in poses]
+    assert abs(wall[-1] * 1e-9 - time.time()) < 600 and np.all(np.diff(wall) >= 0)
+    states = [m["state"] for _, m in f["messages"]["/navd/status"]]
+    assert "navigating" in states and states[-1] == "stopping"

@@ -47,6 +47,7 @@ from navd.daemon.sinks import (
     AutopilotSink,
     DronecanSink,
     MavlinkSink,
+    McapSink,
     Ros2Sink,
     Sink,
     ZenohSink,
@@ -55,6 +56,7 @@ from navd.daemon.sources import InputOpenError, SampleQueue, Sources
 from navd.diag import RateLimitedLog
 from navd.io.common import Sample
 from navd.io.dronecan import DronecanEncoder
+from navd.io.foxglove_mcap import NavMcapWriter
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink
 from navd.io.mavlink.autopilot import AutopilotPolicy, HeadingResetSchedule
 from navd.io.recording import RecordingError, RecordingWriter
@@ -144,7 +146,8 @@ class Daemon:
 
     def __init__(self, cfg: DaemonConfig, *, record_path: str | None = None,
                  notifier: SdNotifier | None = None, extra_sinks: Sequence[Sink] = (),
-                 handle_signals: bool = True) -> None:
+                 handle_signals: bool = True, mcap_path: str | None = None,
+                 mcap_rate_hz: float = 10.0) -> None:
         tables, self.bias_store_state = bias_store.apply(cfg.tables, cfg.bias_store,
                                                          cfg.estimator.imu, time.time())
         if self.bias_store_state.startswith("refused"):
@@ -163,6 +166,9 @@ class Daemon:
         self.mavlink_sink: MavlinkSink | None = None
         self.autopilot_sink: AutopilotSink | None = None
         self.zenoh_sink: ZenohSink | None = None
+        self.mcap_sink: McapSink | None = None
+        self.mcap_path = mcap_path
+        self.mcap_rate_hz = mcap_rate_hz
         self.recorder: RecordingWriter | None = None
         self.record_path = record_path
         self.record_stopped = ""  # why recording stopped early, if it did
@@ -287,6 +293,16 @@ class Daemon:
             if c.ros2.enabled:  # config validation: [ros2] needs [zenoh]
                 sinks.append(Ros2Sink(self.zenoh_sink.publisher.session, c.ros2,
                                       c.nav.estimator.init.aligned_sd))
+        if self.mcap_path:
+            try:
+                writer = NavMcapWriter(self.mcap_path, aligned_sd_rad=c.nav.estimator.init
+                                       .aligned_sd, status=True)
+            except OSError as exc:
+                raise StartupError(f"--mcap {self.mcap_path}: cannot write: "
+                                   f"{exc.strerror or exc} (does its directory exist?)"
+                                   ) from exc
+            self.mcap_sink = McapSink(writer, self.mcap_rate_hz)
+            sinks.append(self.mcap_sink)
         self.sinks = sinks + self._extra
         if self.record_path:
             rate = 1e6 / self.sinks[0].schedule.period_us if self.sinks else m.attitude_rate
@@ -338,6 +354,9 @@ class Daemon:
                 topics = " ".join(p.topic for p in sink.pubs.values())
                 out.append(f"ros2 node {sink.node.namespace.rstrip('/')}/{sink.node.node} "
                            f"(domain {c.ros2.domain_id}) {topics} {hz:g} Hz")
+            elif sink is self.mcap_sink:
+                out.append(f"mcap /navd/pose, /navd/location, /navd/heading {hz:g} Hz + "
+                           f"/navd/status -> {self.mcap_path}")
             elif isinstance(sink, DronecanSink):
                 out.append(f"dronecan Solution {hz:g} Hz as node {c.dronecan.node_id} on "
                            f"{c.dronecan.interface}:{c.dronecan.channel}")
@@ -381,6 +400,8 @@ class Daemon:
         status = self.status()
         if self.zenoh_sink is not None and self.cfg.zenoh.status:
             self.zenoh_sink.publish_status(status)
+        if self.mcap_sink is not None:
+            self._mcap_status()
         self._close()
         _log.info("stopped (%s); final stats %s", self.stop_reason or "error",
                   json.dumps(status, separators=(",", ":"), default=str))
@@ -485,6 +506,8 @@ class Daemon:
             state = self._log_state_change(state, self.state())
             if self.zenoh_sink is not None and self.cfg.zenoh.status:
                 self.zenoh_sink.publish_status(self.status())
+            if self.mcap_sink is not None:
+                self._mcap_status()
             self.notifier.status(self.status_line())
             now_counts = dict(self.est.counters)
             for name, n in now_counts.items():
@@ -503,6 +526,14 @@ class Daemon:
             if time.monotonic() >= next_log:
                 next_log += d.log_period
                 _log.info("%s", self.log_line())
+
+    def _mcap_status(self) -> None:
+        assert self.mcap_sink is not None
+        try:
+            self.mcap_sink.publish_status(self.status())
+        except (OSError, ValueError) as exc:  # a full disk must not end navigation
+            self.sink_errors += 1
+            self.rlog.warn("sink_mcap_status", "mcap status not written: %s", exc)
 
     def _log_state_change(self, old: str, new: str) -> str:
         """Say at once when input stops or resumes, or output stops, rather than in the

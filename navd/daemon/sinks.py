@@ -3,6 +3,7 @@
 
 MavlinkSink    ATTITUDE + ATTITUDE_QUATERNION (+ GLOBAL_POSITION_INT), HEARTBEAT task
 AutopilotSink  GPS_INPUT (+ yaw), ESTIMATOR_STATUS, MAV_CMD_EXTERNAL_ATTITUDE_ESTIMATE
+McapSink       Foxglove channels into an MCAP file (``navd run --mcap``)
 ZenohSink      navd/<vehicle>/attitude per output, navd/<vehicle>/status from the daemon
 Ros2Sink       ROS 2 Imu, NavSatFix, Odometry and heading diagnostics on the Zenoh session
 DronecanSink   uavcan.equipment.ahrs.Solution on the input bus
@@ -21,6 +22,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from navd.diag import Counters, RateLimitedLog
 from navd.io.dronecan import DronecanEncoder, DronecanLink
+from navd.io.foxglove_mcap import NavMcapWriter
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink, MavlinkSender
 from navd.io.mavlink.autopilot import (
     AutopilotPolicy,
@@ -35,8 +37,17 @@ from navd.types import NavSolution
 if TYPE_CHECKING:
     from navd.config.daemon import Ros2Section
 
-__all__ = ["AutopilotSink", "CallbackSink", "DronecanSink", "LatencyStats", "MavlinkSink",
-           "Ros2Sink", "Sink", "ZenohSink"]
+__all__ = [
+    "AutopilotSink",
+    "CallbackSink",
+    "DronecanSink",
+    "LatencyStats",
+    "MavlinkSink",
+    "McapSink",
+    "Ros2Sink",
+    "Sink",
+    "ZenohSink",
+]
 
 _log = logging.getLogger(__name__)
 
@@ -278,6 +289,30 @@ class Ros2Sink(Sink):
 
     def close(self) -> None:
         self.node.close()
+class McapSink(Sink):
+    """Solutions (and the daemon's status) into an MCAP file for Foxglove; MCAP log time is
+    the host's wall clock, each message's timestamp the sensor time."""
+
+    name = "mcap"
+
+    def __init__(self, writer: NavMcapWriter, rate_hz: float,
+                 clock_ns: Callable[[], int] = time.time_ns) -> None:
+        super().__init__(rate_hz)
+        self.writer = writer
+        self._clock_ns = clock_ns
+
+    def publish(self, sol: NavSolution) -> None:
+        self.writer.write_solution(sol, self._clock_ns())
+        self.published += 1
+
+    def publish_status(self, status: Mapping[str, Any]) -> None:
+        self.writer.write_status(status, self._clock_ns())
+
+    def counters(self) -> dict[str, int]:
+        return {"published": self.published, "messages": self.writer.messages}
+
+    def close(self) -> None:
+        self.writer.close()
 
 
 class DronecanSink(Sink):
