@@ -208,10 +208,17 @@ class ZenohSection:
     multicast_scouting: bool = _f(False)
     attitude_rate: float = _f(50.0, "hz")  # attitude samples per second of sensor time
     status: bool = _f(True)
+    # docs/daemon.md "Zenoh threat model": refuse data pushed in and admin-space queries
+    access_control: bool = _f(True)
+    user: str = _f("")  # presented when navd connects out ("" = none)
+    password_file: str = _f("")  # that user's password, first line (kept out of navd.toml)
+    users_file: str = _f("")  # user:password lines a peer must match to connect ("" = any)
 
     def validate(self) -> None:
         check(0.0 < self.attitude_rate <= 1000.0, "zenoh", "attitude_rate_hz",
               "a rate in Hz in (0, 1000]")
+        check(not self.user or bool(self.password_file), "zenoh", "password_file",
+              "set when user is (a file holding the password)")
         if not self.vehicle or ZENOH_BAD_CHUNK_CHARS & set(self.vehicle):
             raise ConfigError(f"[zenoh] vehicle: vehicle {self.vehicle!r} must be one key "
                               "chunk (no / * $ ? #)")

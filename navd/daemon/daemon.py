@@ -34,6 +34,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from navd.config import ConfigError
 from navd.config.aiding import NavConfig
 from navd.config.daemon import DaemonConfig
 from navd.core.aiding.dov import dov_status
@@ -253,7 +254,11 @@ class Daemon:
         c = self.cfg
         if c.zenoh.enabled:
             try:
-                session = ZenohPublisher(zenoh_session_config(c.zenoh))
+                zcfg = zenoh_session_config(c.zenoh)
+            except ConfigError as exc:
+                raise StartupError(str(exc)) from exc
+            try:
+                session = ZenohPublisher(zcfg)
             except Exception as exc:  # zenoh.ZError: listen/connect endpoints
                 key = "zenoh.listen" if c.zenoh.listen else "zenoh.connect"
                 raise StartupError(explain_open_error(
