@@ -4,7 +4,9 @@
 
 from __future__ import annotations
 
+import asyncio
 import math
+import socket
 import subprocess
 import sys
 import threading
@@ -27,6 +29,7 @@ from daemon_util import (
 )
 from pymavlink import mavutil
 from test_foxglove_mcap import read_mcap
+from test_foxglove_ws import foxglove_client
 
 from navd.config import EstimatorConfig
 from navd.core.estimator import Estimator
@@ -52,12 +55,14 @@ def _autopilot(port: int, out: list[tuple[str, dict[str, Any]]], stop: threading
 def received(tmp_path_factory: pytest.TempPathFactory) -> Any:
     tmp: Path = tmp_path_factory.mktemp("ap")
     port_in, port_out = free_port(), free_port()
+    port_fox = free_port(socket.SOCK_STREAM)
     cfg = write_config(tmp / "navd.toml", {
         "mavlink": {"listen": f"udpin:127.0.0.1:{port_in}",
                     "send": f"udpout:127.0.0.1:{port_out}"},
         "autopilot": {"gps_input": True, "gps_input_rate_hz": 5.0, "heading_reset": True,
                       "estimator_status": True, "target_sysid": 42, "target_compid": 1},
         "zenoh": {"enabled": False},
+        "foxglove": {"enabled": True, "port": port_fox, "rate_hz": 10.0},
     })
     notify = NotifySocket()
     mcap_path = tmp / "live.mcap"
@@ -66,8 +71,16 @@ def received(tmp_path_factory: pytest.TempPathFactory) -> Any:
     out: list[tuple[str, dict[str, Any]]] = []
     stop = threading.Event()
     client = threading.Thread(target=_autopilot, args=(port_out, out, stop), daemon=True)
+    live: list[Any] = []
+
+    def fox_client() -> None:  # Foxglove's view of the run: 50 heading messages
+        live.append(asyncio.run(foxglove_client(port_fox, ["/navd/heading"], 50,
+                                                timeout_s=60.0)))
+
+    fox = threading.Thread(target=fox_client, daemon=True)
     try:
         notify.wait_for("READY=1", STARTUP_TIMEOUT_S, proc)
+        fox.start()
         client.start()
         time.sleep(0.3)
         st = subprocess.run(
@@ -81,13 +94,14 @@ def received(tmp_path_factory: pytest.TempPathFactory) -> Any:
         stop.set()
         rc = stop_daemon(proc)
         client.join(2)
+        fox.join(5)
         notify.close()
     assert rc == 0, (tmp / "navd.log").read_text()[-2000:]
-    return out, (tmp / "navd.log").read_text(), mcap_path
+    return out, (tmp / "navd.log").read_text(), mcap_path, live
 
 
 def test_gps_input_reaches_the_autopilot_with_yaw_only_once_aligned(received: Any) -> None:
-    out, _, _ = received
+    out, _, _, _ = received
     run = car_run(DURATION_S)
     gps = [m for t, m in out if t == "GPS_INPUT"]
     assert len(gps) >= 0.8 * DURATION_S * 5.0  # 5 Hz of sensor time, UDP on loopback
@@ -118,7 +132,7 @@ def test_gps_input_reaches_the_autopilot_with_yaw_only_once_aligned(received: An
 
 
 def test_one_heading_reset_command_when_the_heading_aligns(received: Any) -> None:
-    out, _, _ = received
+    out, _, _, _ = received
     cmds = [m for t, m in out if t == "COMMAND_LONG"]
     assert len(cmds) == 1, cmds  # aligned once; no reset on this drive
     c = cmds[0]
@@ -132,7 +146,7 @@ def test_one_heading_reset_command_when_the_heading_aligns(received: Any) -> Non
 
 
 def test_estimator_status_flags_and_log_line(received: Any) -> None:
-    out, log, _ = received
+    out, log, _, _ = received
     st = [m for t, m in out if t == "ESTIMATOR_STATUS"]
     # ATTITUDE (bit 1) exactly when GPS_INPUT carries a yaw for the same solution
     yaw = {m["time_usec"]: m["yaw"] != 0 for t, m in out if t == "GPS_INPUT"}
@@ -145,7 +159,7 @@ def test_estimator_status_flags_and_log_line(received: Any) -> None:
 def test_run_mcap_has_the_foxglove_channels_and_the_status(received: Any) -> None:
     """``navd run --mcap``: closed cleanly at SIGTERM (summary present), the Foxglove
     channels at 10 Hz of sensor time, the daemon status; log time = host wall clock."""
-    _, _, path = received
+    _, _, path, _ = received
     f = read_mcap(path)
     assert f["schemas"]["/navd/pose"][:2] == ("foxglove.PoseInFrame", "jsonschema")
     assert f["schemas"]["/navd/location"][:2] == ("foxglove.LocationFix", "jsonschema")
@@ -158,3 +172,20 @@ def test_run_mcap_has_the_foxglove_channels_and_the_status(received: Any) -> Non
     assert abs(wall[-1] * 1e-9 - time.time()) < 600 and np.all(np.diff(wall) >= 0)
     states = [m["state"] for _, m in f["messages"]["/navd/status"]]
     assert "navigating" in states and states[-1] == "stopping"
+
+
+def test_live_foxglove_server_streams_the_heading(received: Any) -> None:
+    """``[foxglove] enabled``: a WebSocket client subscribed while the drive streams gets
+    navd.HeadingStatus messages at 10 Hz of sensor time, with the yaw GPS_INPUT carried."""
+    out, log, _, live = received
+    assert live, "the Foxglove client got its 50 messages"
+    _, chans, got = live[0]
+    assert chans["/navd/heading"]["schemaName"] == "navd.HeadingStatus"
+    t = [m["t_us"] for _, _, m in got]
+    assert np.all(np.diff(t) == 100_000)
+    gps = {m["time_usec"]: m["yaw"] for k, m in out if k == "GPS_INPUT"}
+    same = [m for _, _, m in got if gps.get(m["t_us"])]
+    assert len(same) >= 10  # 5 Hz GPS_INPUT instants among the 10 Hz heading messages
+    for m in same:
+        assert abs((m["euler_deg"][2] - gps[m["t_us"]] * 0.01 + 180) % 360 - 180) < 0.006
+    assert "foxglove ws://127.0.0.1:" in log

@@ -1,6 +1,6 @@
 """The daemon's own config sections: ``[daemon]``, ``[mavlink]``, ``[autopilot]``,
-``[dronecan]``, ``[zenoh]``, ``[ros2]``, ``[bias_store]``, and :class:`DaemonConfig` (all of
-``navd run``'s configuration).
+``[dronecan]``, ``[zenoh]``, ``[ros2]``, ``[foxglove]``, ``[bias_store]``, and
+:class:`DaemonConfig` (all of ``navd run``'s configuration).
 
 Same builder and naming rule as every section (:mod:`navd.config.load`): the TOML key carries
 the unit (``status_period_s``, ``attitude_rate_hz``), the attribute drops it and holds the SI
@@ -37,6 +37,7 @@ __all__ = [
     "DaemonConfig",
     "DaemonSection",
     "DronecanSection",
+    "FoxgloveSection",
     "MavlinkSection",
     "Ros2Section",
     "ZenohSection",
@@ -253,6 +254,21 @@ class Ros2Section:
 
 
 @dataclass(frozen=True)
+class FoxgloveSection:
+    """``[foxglove]``: a live Foxglove WebSocket server (navd/io/foxglove_ws.py)."""
+
+    enabled: bool = _f(False)
+    host: str = _f("127.0.0.1")  # no authentication: keep it on loopback
+    port: int = _f(8765)
+    rate: float = _f(10.0, "hz")  # solutions per second of sensor time
+
+    def validate(self) -> None:
+        check(0 <= self.port <= 65535, "foxglove", "port", "a TCP port 0..65535 (0 = any free)")
+        check(0.0 < self.rate <= 1000.0, "foxglove", "rate_hz", "a rate in Hz in (0, 1000]")
+        check(bool(self.host), "foxglove", "host", "an address to listen on")
+
+
+@dataclass(frozen=True)
 class BiasStoreSection:
     """``[bias_store]``: learned IMU biases kept between runs (:mod:`navd.daemon.bias_store`)."""
 
@@ -283,6 +299,7 @@ _SECTIONS: dict[str, type[Any]] = {
     "dronecan": DronecanSection,
     "zenoh": ZenohSection,
     "ros2": Ros2Section,
+    "foxglove": FoxgloveSection,
     "bias_store": BiasStoreSection,
 }
 # sections that configure `navd run` only (inputs, outputs, the service): a replay reads its
@@ -304,6 +321,7 @@ class DaemonConfig:
     dronecan: DronecanSection = field(default_factory=DronecanSection)
     zenoh: ZenohSection = field(default_factory=ZenohSection)
     ros2: Ros2Section = field(default_factory=Ros2Section)
+    foxglove: FoxgloveSection = field(default_factory=FoxgloveSection)
     bias_store: BiasStoreSection = field(default_factory=BiasStoreSection)
     nav: NavConfig = field(default_factory=NavConfig)
     tables: dict[str, Any] = field(default_factory=dict)

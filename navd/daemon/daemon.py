@@ -47,8 +47,8 @@ from navd.daemon.sinks import (
     MAV_STATE_STANDBY,
     AutopilotSink,
     DronecanSink,
+    FoxgloveSink,
     MavlinkSink,
-    McapSink,
     Ros2Sink,
     Sink,
     ZenohSink,
@@ -58,6 +58,7 @@ from navd.diag import RateLimitedLog
 from navd.io.common import Sample
 from navd.io.dronecan import DronecanEncoder
 from navd.io.foxglove_mcap import NavMcapWriter
+from navd.io.foxglove_ws import FoxgloveLive
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink
 from navd.io.mavlink.autopilot import AutopilotPolicy, HeadingResetSchedule
 from navd.io.recording import RecordingError, RecordingWriter
@@ -167,7 +168,8 @@ class Daemon:
         self.mavlink_sink: MavlinkSink | None = None
         self.autopilot_sink: AutopilotSink | None = None
         self.zenoh_sink: ZenohSink | None = None
-        self.mcap_sink: McapSink | None = None
+        self.mcap_sink: FoxgloveSink | None = None
+        self.foxglove_sink: FoxgloveSink | None = None
         self.mcap_path = mcap_path
         self.mcap_rate_hz = mcap_rate_hz
         self.recorder: RecordingWriter | None = None
@@ -306,8 +308,17 @@ class Daemon:
                 raise StartupError(f"--mcap {self.mcap_path}: cannot write: "
                                    f"{exc.strerror or exc} (does its directory exist?)"
                                    ) from exc
-            self.mcap_sink = McapSink(writer, self.mcap_rate_hz)
+            self.mcap_sink = FoxgloveSink(writer, self.mcap_rate_hz, "mcap")
             sinks.append(self.mcap_sink)
+        f = c.foxglove
+        if f.enabled:
+            try:
+                live = FoxgloveLive(host=f.host, port=f.port,
+                                    aligned_sd_rad=c.nav.estimator.init.aligned_sd)
+            except Exception as exc:  # the SDK's error for a port in use, bad host
+                raise StartupError(explain_open_error("foxglove.port", f.port, exc)) from exc
+            self.foxglove_sink = FoxgloveSink(live, f.rate, "foxglove")
+            sinks.append(self.foxglove_sink)
         self.sinks = sinks + self._extra
         if self.record_path:
             rate = 1e6 / self.sinks[0].schedule.period_us if self.sinks else m.attitude_rate
@@ -359,6 +370,10 @@ class Daemon:
                 topics = " ".join(p.topic for p in sink.pubs.values())
                 out.append(f"ros2 node {sink.node.namespace.rstrip('/')}/{sink.node.node} "
                            f"(domain {c.ros2.domain_id}) {topics} {hz:g} Hz")
+            elif sink is self.foxglove_sink:
+                out.append(f"foxglove ws://{c.foxglove.host}:{c.foxglove.port} "
+                           f"/navd/pose, /navd/location, /navd/heading {hz:g} Hz + "
+                           "/navd/status")
             elif sink is self.mcap_sink:
                 out.append(f"mcap /navd/pose, /navd/location, /navd/heading {hz:g} Hz + "
                            f"/navd/status -> {self.mcap_path}")
@@ -405,8 +420,7 @@ class Daemon:
         status = self.status()
         if self.zenoh_sink is not None and self.cfg.zenoh.status:
             self.zenoh_sink.publish_status(status)
-        if self.mcap_sink is not None:
-            self._mcap_status()
+        self._foxglove_status()
         self._close()
         _log.info("stopped (%s); final stats %s", self.stop_reason or "error",
                   json.dumps(status, separators=(",", ":"), default=str))
@@ -511,8 +525,7 @@ class Daemon:
             state = self._log_state_change(state, self.state())
             if self.zenoh_sink is not None and self.cfg.zenoh.status:
                 self.zenoh_sink.publish_status(self.status())
-            if self.mcap_sink is not None:
-                self._mcap_status()
+            self._foxglove_status()
             self.notifier.status(self.status_line())
             now_counts = dict(self.est.counters)
             for name, n in now_counts.items():
@@ -532,13 +545,16 @@ class Daemon:
                 next_log += d.log_period
                 _log.info("%s", self.log_line())
 
-    def _mcap_status(self) -> None:
-        assert self.mcap_sink is not None
-        try:
-            self.mcap_sink.publish_status(self.status())
-        except (OSError, ValueError) as exc:  # a full disk must not end navigation
-            self.sink_errors += 1
-            self.rlog.warn("sink_mcap_status", "mcap status not written: %s", exc)
+    def _foxglove_status(self) -> None:
+        for sink in (self.mcap_sink, self.foxglove_sink):
+            if sink is None:
+                continue
+            try:
+                sink.publish_status(self.status())
+            except (OSError, ValueError) as exc:  # a full disk must not end navigation
+                self.sink_errors += 1
+                self.rlog.warn(f"sink_{sink.name}_status", "%s status not written: %s",
+                               sink.name, exc)
 
     def _log_state_change(self, old: str, new: str) -> str:
         """Say at once when input stops or resumes, or output stops, rather than in the

@@ -3,7 +3,7 @@
 
 MavlinkSink    ATTITUDE + ATTITUDE_QUATERNION (+ GLOBAL_POSITION_INT), HEARTBEAT task
 AutopilotSink  GPS_INPUT (+ yaw), ESTIMATOR_STATUS, MAV_CMD_EXTERNAL_ATTITUDE_ESTIMATE
-McapSink       Foxglove channels into an MCAP file (``navd run --mcap``)
+FoxgloveSink   Foxglove channels into an MCAP file (``--mcap``) or a live WebSocket server
 ZenohSink      navd/<vehicle>/attitude per output, navd/<vehicle>/status from the daemon
 Ros2Sink       ROS 2 Imu, NavSatFix, Odometry and heading diagnostics on the Zenoh session
 DronecanSink   uavcan.equipment.ahrs.Solution on the input bus
@@ -16,13 +16,12 @@ import logging
 import math
 import time
 from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from navd.diag import Counters, RateLimitedLog
 from navd.io.dronecan import DronecanEncoder, DronecanLink
-from navd.io.foxglove_mcap import NavMcapWriter
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink, MavlinkSender
 from navd.io.mavlink.autopilot import (
     AutopilotPolicy,
@@ -41,9 +40,9 @@ __all__ = [
     "AutopilotSink",
     "CallbackSink",
     "DronecanSink",
+    "FoxgloveSink",
     "LatencyStats",
     "MavlinkSink",
-    "McapSink",
     "Ros2Sink",
     "Sink",
     "ZenohSink",
@@ -289,16 +288,30 @@ class Ros2Sink(Sink):
 
     def close(self) -> None:
         self.node.close()
-class McapSink(Sink):
-    """Solutions (and the daemon's status) into an MCAP file for Foxglove; MCAP log time is
-    the host's wall clock, each message's timestamp the sensor time."""
 
-    name = "mcap"
 
-    def __init__(self, writer: NavMcapWriter, rate_hz: float,
+class FoxgloveWriter(Protocol):
+    """NavMcapWriter (file) or FoxgloveLive (WebSocket server)."""
+
+    messages: int
+
+    def write_solution(self, sol: NavSolution, log_time_ns: int) -> None: ...
+
+    def write_status(self, status: Mapping[str, Any], log_time_ns: int) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class FoxgloveSink(Sink):
+    """Solutions (and the daemon's status) as Foxglove channels, into an MCAP file
+    (``name`` "mcap") or a live WebSocket server ("foxglove"); the log time is the host's
+    wall clock, each message's timestamp the sensor time."""
+
+    def __init__(self, writer: FoxgloveWriter, rate_hz: float, name: str,
                  clock_ns: Callable[[], int] = time.time_ns) -> None:
         super().__init__(rate_hz)
         self.writer = writer
+        self.name = name
         self._clock_ns = clock_ns
 
     def publish(self, sol: NavSolution) -> None:

@@ -42,7 +42,9 @@ __all__ = [
     "HEADING_SCHEMA",
     "LOCATION_FIX_SCHEMA",
     "POSE_IN_FRAME_SCHEMA",
+    "FoxgloveMessages",
     "NavMcapWriter",
+    "encode_json",
     "enu_flu_quat",
 ]
 
@@ -157,6 +159,61 @@ def _scrub(obj: Any) -> Any:
     return obj
 
 
+class FoxgloveMessages:
+    """The channel messages for one solution, shared by the MCAP file and the live server;
+    keeps the ENU origin (the first solution with a position)."""
+
+    def __init__(self, aligned_sd_rad: float) -> None:
+        self.aligned_sd_rad = aligned_sd_rad
+        self._origin: tuple[float, float, float] | None = None
+
+    def _enu_m(self, sol: NavSolution) -> tuple[float, float, float]:
+        if self._origin is None:
+            self._origin = (sol.lat_rad, sol.lon_rad, sol.alt_m)
+        lat0, lon0, h0 = self._origin
+        r_m, r_n = radii(lat0)
+        return ((sol.lon_rad - lon0) * (r_n + h0) * math.cos(lat0),
+                (sol.lat_rad - lat0) * (r_m + h0), sol.alt_m - h0)
+
+    def of(self, sol: NavSolution) -> list[tuple[str, dict[str, Any]]]:
+        """[(topic, JSON object)] for ``sol``; pose and location only with a finite position."""
+        out: list[tuple[str, dict[str, Any]]] = []
+        ts = _time(sol.t_us)
+        w, x, y, z = enu_flu_quat(sol.quat_nb)
+        if all(math.isfinite(v) for v in (sol.lat_rad, sol.lon_rad, sol.alt_m)):
+            e, n, u = self._enu_m(sol)
+            out.append(("/navd/pose", {
+                "timestamp": ts, "frame_id": "enu",
+                "pose": {"position": {"x": e, "y": n, "z": u},
+                         "orientation": {"x": x, "y": y, "z": z, "w": w}}}))
+            sd_n, sd_e, sd_d = sol.pos_sd_m
+            known = all(math.isfinite(v) for v in sol.pos_sd_m)
+            cov = [sd_e**2, 0.0, 0.0, 0.0, sd_n**2, 0.0, 0.0, 0.0, sd_d**2] if known \
+                else [0.0] * 9
+            out.append(("/navd/location", {
+                "timestamp": ts, "frame_id": "navd",
+                "latitude": math.degrees(sol.lat_rad), "longitude": math.degrees(sol.lon_rad),
+                "altitude": sol.alt_m, "position_covariance": cov,
+                "position_covariance_type": 2 if known else 0}))
+        d = math.degrees
+        out.append(("/navd/heading", {
+            "timestamp": ts, "t_us": sol.t_us,
+            "euler_deg": [d(sol.roll_rad), d(sol.pitch_rad), d(sol.yaw_rad)],
+            "sigma_deg": [d(v) for v in sol.att_sd_rad],
+            "aligned": sol.heading_good(self.aligned_sd_rad),
+            "heading_initialised": bool(sol.heading_aligned),
+            "heading_resets": sol.heading_resets,
+            "gnss_age_s": sol.gnss_age_us * 1e-6 if sol.gnss_age_us >= 0 else None,
+        }))
+        return out
+
+
+def encode_json(obj: Any) -> bytes:
+    """Strict JSON (non-finite numbers as null), compact."""
+    return json.dumps(_scrub(obj), separators=(",", ":"), allow_nan=False,
+                      default=str).encode()
+
+
 class NavMcapWriter:
     """Writes the channels above to ``path``.  With ``atomic`` the file is written as
     ``<path>.part`` and renamed on :meth:`close`; :meth:`abort` removes it instead."""
@@ -165,7 +222,7 @@ class NavMcapWriter:
                  status: bool = False) -> None:
         self.path = Path(path)
         self._tmp = self.path.with_name(self.path.name + ".part") if atomic else self.path
-        self.aligned_sd_rad = aligned_sd_rad
+        self._msgs = FoxgloveMessages(aligned_sd_rad)
         self._fh: IO[bytes] | None = open(self._tmp, "wb")  # noqa: SIM115 (closed in close)
         self._w = Writer(self._fh)
         self._w.start(profile="", library="navd")
@@ -177,53 +234,16 @@ class NavMcapWriter:
                                           data=json.dumps(schema).encode())
             self._chan[topic] = self._w.register_channel(topic=topic, message_encoding="json",
                                                          schema_id=sid)
-        self._origin: tuple[float, float, float] | None = None
         self.messages = 0
 
     def _put(self, topic: str, obj: Mapping[str, Any], log_time_ns: int) -> None:
-        data = json.dumps(_scrub(obj), separators=(",", ":"), allow_nan=False,
-                          default=str).encode()
-        self._w.add_message(channel_id=self._chan[topic], log_time=log_time_ns, data=data,
-                            publish_time=log_time_ns)
+        self._w.add_message(channel_id=self._chan[topic], log_time=log_time_ns,
+                            data=encode_json(obj), publish_time=log_time_ns)
         self.messages += 1
 
-    def _enu_m(self, sol: NavSolution) -> tuple[float, float, float]:
-        if self._origin is None:
-            self._origin = (sol.lat_rad, sol.lon_rad, sol.alt_m)
-        lat0, lon0, h0 = self._origin
-        r_m, r_n = radii(lat0)
-        return ((sol.lon_rad - lon0) * (r_n + h0) * math.cos(lat0),
-                (sol.lat_rad - lat0) * (r_m + h0), sol.alt_m - h0)
-
     def write_solution(self, sol: NavSolution, log_time_ns: int) -> None:
-        ts = _time(sol.t_us)
-        w, x, y, z = enu_flu_quat(sol.quat_nb)
-        pos_ok = all(math.isfinite(v) for v in (sol.lat_rad, sol.lon_rad, sol.alt_m))
-        if pos_ok:
-            e, n, u = self._enu_m(sol)
-            self._put("/navd/pose", {
-                "timestamp": ts, "frame_id": "enu",
-                "pose": {"position": {"x": e, "y": n, "z": u},
-                         "orientation": {"x": x, "y": y, "z": z, "w": w}}}, log_time_ns)
-            sd_n, sd_e, sd_d = sol.pos_sd_m
-            known = all(math.isfinite(v) for v in sol.pos_sd_m)
-            cov = [sd_e**2, 0.0, 0.0, 0.0, sd_n**2, 0.0, 0.0, 0.0, sd_d**2] if known \
-                else [0.0] * 9
-            self._put("/navd/location", {
-                "timestamp": ts, "frame_id": "navd",
-                "latitude": math.degrees(sol.lat_rad), "longitude": math.degrees(sol.lon_rad),
-                "altitude": sol.alt_m, "position_covariance": cov,
-                "position_covariance_type": 2 if known else 0}, log_time_ns)
-        d = math.degrees
-        self._put("/navd/heading", {
-            "timestamp": ts, "t_us": sol.t_us,
-            "euler_deg": [d(sol.roll_rad), d(sol.pitch_rad), d(sol.yaw_rad)],
-            "sigma_deg": [d(v) for v in sol.att_sd_rad],
-            "aligned": sol.heading_good(self.aligned_sd_rad),
-            "heading_initialised": bool(sol.heading_aligned),
-            "heading_resets": sol.heading_resets,
-            "gnss_age_s": sol.gnss_age_us * 1e-6 if sol.gnss_age_us >= 0 else None,
-        }, log_time_ns)
+        for topic, obj in self._msgs.of(sol):
+            self._put(topic, obj, log_time_ns)
 
     def write_status(self, status: Mapping[str, Any], log_time_ns: int) -> None:
         if "/navd/status" in self._chan:
