@@ -58,7 +58,6 @@ from navd.diag import RateLimitedLog
 from navd.io.common import Sample
 from navd.io.dronecan import DronecanEncoder
 from navd.io.foxglove_mcap import NavMcapWriter
-from navd.io.foxglove_ws import FoxgloveLive
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink
 from navd.io.mavlink.autopilot import AutopilotPolicy, HeadingResetSchedule
 from navd.io.recording import RecordingError, RecordingWriter
@@ -312,6 +311,11 @@ class Daemon:
             sinks.append(self.mcap_sink)
         f = c.foxglove
         if f.enabled:
+            try:
+                from navd.io.foxglove_ws import FoxgloveLive  # optional: navd[foxglove]
+            except ImportError as exc:
+                raise StartupError("[foxglove] enabled needs the Foxglove SDK: pip install "
+                                   "'navd[foxglove]'") from exc
             try:
                 live = FoxgloveLive(host=f.host, port=f.port,
                                     aligned_sd_rad=c.nav.estimator.init.aligned_sd)
