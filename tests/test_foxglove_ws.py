@@ -90,3 +90,26 @@ def test_live_server_advertises_foxglove_schemas_and_streams_the_solutions() -> 
     for (_, _, a), (_, _, b) in zip(by_topic, want, strict=True):
         assert a == json.loads(json.dumps(b))
     assert got[-1] == ("/navd/status", 9_000, {"state": "navigating"})
+
+
+def test_enabled_without_the_sdk_is_a_clear_startup_error(
+        monkeypatch: Any, caplog: Any) -> None:
+    """navd[foxglove] not installed: ``navd run`` says what to install and exits 1."""
+    import socket
+    import sys
+
+    from navd.config.daemon import DaemonConfig
+    from navd.daemon.daemon import Daemon
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    monkeypatch.setitem(sys.modules, "foxglove", None)  # import foxglove -> ImportError
+    monkeypatch.delitem(sys.modules, "navd.io.foxglove_ws", raising=False)
+    cfg = DaemonConfig.from_dict({
+        "mavlink": {"listen": f"udpin:127.0.0.1:{port}", "send": ""},
+        "zenoh": {"enabled": False}, "daemon": {"warm_up": False},
+        "foxglove": {"enabled": True, "port": 0}})
+    rc = asyncio.run(Daemon(cfg, handle_signals=False).run())
+    assert rc == 1
+    assert "pip install 'navd[foxglove]'" in caplog.text
