@@ -89,6 +89,11 @@ class NavSolution:
         rate_b: last bias-compensated angular rate, body FRD, rad/s.
         pos_sd_m: 1-sigma of the position along (north, east, down), m (NaN: not given).
         vel_sd_mps: 1-sigma of vel_n along (north, east, down), m/s (NaN: not given).
+        gnss_age_us: sensor-time age of the last GNSS fix the filter used, µs; -1 before
+            the first (a growing age means the INS is coasting).
+        heading_resets: times the heading was reset without a measurement update (a yaw
+            reset to the GNSS course, a reset after a velocity lock-out, a restart) since the
+            estimator was made; a change tells a consumer the heading jumped.
     """
 
     t_us: int
@@ -109,6 +114,8 @@ class NavSolution:
     # recordings) still construct; a ROS 2 consumer needs them for its covariances
     pos_sd_m: tuple[float, float, float] = (math.nan, math.nan, math.nan)
     vel_sd_mps: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    gnss_age_us: int = -1
+    heading_resets: int = 0
 
     def heading_good(self, max_sd_rad: float) -> bool:
         """The heading is initialised *and* its 1-sigma is within ``max_sd_rad``: what an

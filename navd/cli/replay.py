@@ -12,7 +12,7 @@ import copy
 import sys
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from navd.config import ConfigError, apply_overrides, load_config
 from navd.config.daemon import RUN_ONLY_SECTIONS, DaemonConfig
@@ -26,15 +26,22 @@ from navd.io.csv_replay import (
     read_imu,
     read_pol,
 )
+from navd.io.foxglove_mcap import NavMcapWriter
 from navd.pipeline import build_estimator, solutions
-from navd.types import Sample
+from navd.types import NavSolution, Sample
 
 if TYPE_CHECKING:
     from navd.config import NavConfig
     from navd.io.logs import AidingWriter
 
 
-def run_replay(est: Estimator, samples: Iterable[Sample], writer: SolutionWriter,
+class RowWriter(Protocol):
+    """Anything that takes solution rows (SolutionWriter, the MCAP tee)."""
+
+    def write(self, s: NavSolution) -> None: ...
+
+
+def run_replay(est: Estimator, samples: Iterable[Sample], writer: RowWriter,
                rate_hz: float = 50.0, progress_total: int | None = None,
                progress: bool = False, aiding: AidingWriter | None = None) -> int:
     """Push every sample; write the solutions a sink at ``rate_hz`` would get; return the
@@ -96,6 +103,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override a config value (repeatable)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument("--mcap", metavar="FILE",
+                    help="also write the output rows to FILE as MCAP for Foxglove (pose, "
+                         "location, heading status; log time = sensor time)")
     _add_log_arguments(ap)
     a = ap.parse_args(argv)
     missing = _missing_output_dir(a)
@@ -131,12 +141,12 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(a.out)
     tmp = out.with_suffix(out.suffix + ".part")
     try:
-        with open(tmp, "w") as fh, _aiding(a.aiding_out) as aid:
+        with open(tmp, "w") as fh, _aiding(a.aiding_out) as aid, _mcap(a, est) as mc:
             pol = read_pol(pol_path, rep) if pol_path is not None else ()
             rows = run_replay(est, merge(read_imu(imu_path, rep), read_gnss(gnss_path, rep),
                                          pol),
-                              SolutionWriter(fh), a.rate, total, progress=not a.quiet,
-                              aiding=aid)
+                              _Tee(SolutionWriter(fh), mc), a.rate, total,
+                              progress=not a.quiet, aiding=aid)
     except ReplayFormatError as exc:
         tmp.unlink(missing_ok=True)
         print(f"navd replay: {exc}", file=sys.stderr)
@@ -174,8 +184,9 @@ def _replay_recording(a: argparse.Namespace) -> int:
     out = Path(a.out)
     tmp = out.with_suffix(out.suffix + ".part")
     rows = 0
-    with open(tmp, "w") as fh:
-        writer = SolutionJsonlWriter(fh) if out.suffix == ".jsonl" else SolutionWriter(fh)
+    with open(tmp, "w") as fh, _mcap(a, est) as mc:
+        writer = _Tee(SolutionJsonlWriter(fh) if out.suffix == ".jsonl" else SolutionWriter(fh),
+                      mc)
         for sol in solutions(est, rec.samples(), rate):
             writer.write(sol)
             rows += 1
@@ -188,10 +199,34 @@ def _replay_recording(a: argparse.Namespace) -> int:
     return _exit_code(rows, est)
 
 
+class _Tee:
+    """The solution file's writer, plus the MCAP file when ``--mcap`` is given."""
+
+    def __init__(self, writer: RowWriter, mcap: NavMcapWriter | None) -> None:
+        self._writer = writer
+        self._mcap = mcap
+
+    def write(self, sol: NavSolution) -> None:
+        self._writer.write(sol)
+        if self._mcap is not None:
+            self._mcap.write_solution(sol, max(sol.t_us, 0) * 1000)
+
+
+@contextlib.contextmanager
+def _mcap(a: argparse.Namespace, est: Estimator) -> Iterator[NavMcapWriter | None]:
+    """``--mcap``: written as FILE.part and renamed when the replay ends; an error removes
+    it (no half-written file is left behind)."""
+    if not a.mcap:
+        yield None
+        return
+    with NavMcapWriter(a.mcap, aligned_sd_rad=est.cfg.init.aligned_sd, atomic=True) as mc:
+        yield mc
+
+
 def _missing_output_dir(a: argparse.Namespace) -> str:
     """Why an output file cannot be created ('' if all can): checked before the replay, which
     may take minutes, rather than a traceback at its end."""
-    for opt in ("out", "reference_out", "aiding_out"):
+    for opt in ("out", "reference_out", "aiding_out", "mcap"):
         path = getattr(a, opt, None)
         if path is None:
             continue
@@ -324,8 +359,8 @@ def _replay_log(a: argparse.Namespace) -> int:
               file=sys.stderr)
     out = Path(a.out)
     tmp = out.with_suffix(out.suffix + ".part")
-    with open(tmp, "w") as fh, _aiding(a.aiding_out) as aid:
-        rows = run_replay(est, data.samples(), SolutionWriter(fh),
+    with open(tmp, "w") as fh, _aiding(a.aiding_out) as aid, _mcap(a, est) as mc:
+        rows = run_replay(est, data.samples(), _Tee(SolutionWriter(fh), mc),
                           50.0 if a.rate is None else a.rate, data.n_samples,
                           progress=not a.quiet, aiding=aid)
     tmp.replace(out)

@@ -1,6 +1,6 @@
 """``navd run``: the daemon from a config file, as a systemd service.
 
-    navd run [--config FILE] [--set section.key=value ...] [--record FILE]
+    navd run [--config FILE] [--set section.key=value ...] [--record FILE] [--mcap FILE]
 
 What the daemon does is described in :mod:`navd.daemon.daemon`.
 """
@@ -54,11 +54,19 @@ def main(argv: list[str] | None = None) -> int:
                     help="override a config value (repeatable), e.g. mavlink.sysid=2")
     ap.add_argument("--record", metavar="FILE",
                     help="write every pushed sample to FILE (replay: navd replay --recording)")
+    ap.add_argument("--mcap", metavar="FILE",
+                    help="also write attitude, position, heading status and the daemon status "
+                         "to FILE as MCAP for Foxglove (docs/interfaces.md)")
+    ap.add_argument("--mcap-rate-hz", type=float, default=10.0, metavar="HZ",
+                    help="solutions per second of sensor time in the MCAP file (default 10)")
     a = ap.parse_args(argv)
+    if not 0.0 < a.mcap_rate_hz <= 1000.0:
+        ap.error("--mcap-rate-hz must be in (0, 1000]")
     try:
         cfg = load_daemon_config(a.config, a.set)
         setup_logging(cfg.daemon.log_level)
-        daemon = Daemon(cfg, record_path=a.record or cfg.daemon.record or None)
+        daemon = Daemon(cfg, record_path=a.record or cfg.daemon.record or None,
+                        mcap_path=a.mcap, mcap_rate_hz=a.mcap_rate_hz)
         run = _loop_runner(cfg.daemon.event_loop)
     except ConfigError as exc:
         print(f"navd run: config error: {exc}", file=sys.stderr)

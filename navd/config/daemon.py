@@ -1,5 +1,6 @@
-"""The daemon's own config sections: ``[daemon]``, ``[mavlink]``, ``[dronecan]``, ``[zenoh]``,
-``[ros2]``, ``[bias_store]``, and :class:`DaemonConfig` (all of ``navd run``'s configuration).
+"""The daemon's own config sections: ``[daemon]``, ``[mavlink]``, ``[autopilot]``,
+``[dronecan]``, ``[zenoh]``, ``[ros2]``, ``[foxglove]``, ``[bias_store]``, and
+:class:`DaemonConfig` (all of ``navd run``'s configuration).
 
 Same builder and naming rule as every section (:mod:`navd.config.load`): the TOML key carries
 the unit (``status_period_s``, ``attitude_rate_hz``), the attribute drops it and holds the SI
@@ -31,10 +32,12 @@ from navd.io.ros2.names import validate_name, validate_namespace
 __all__ = [
     "RUN_ONLY_SECTIONS",
     "ZENOH_BAD_CHUNK_CHARS",
+    "AutopilotSection",
     "BiasStoreSection",
     "DaemonConfig",
     "DaemonSection",
     "DronecanSection",
+    "FoxgloveSection",
     "MavlinkSection",
     "Ros2Section",
     "ZenohSection",
@@ -135,6 +138,39 @@ class MavlinkSection:
 
 
 @dataclass(frozen=True)
+class AutopilotSection:
+    """``[autopilot]``: navd as a GPS / heading source for an autopilot, on the ``[mavlink]``
+    send link (docs/autopilot.md).  Everything is off by default."""
+
+    gps_input: bool = _f(False)  # GPS_INPUT with navd's position, velocity and heading (yaw)
+    gps_input_rate: float = _f(5.0, "hz")  # per second of sensor time
+    max_gnss_age: float = _f(1.0, "s")  # 3D fix only while a GNSS fix was used this recently
+    heading_reset: bool = _f(False)  # COMMAND_LONG MAV_CMD_EXTERNAL_ATTITUDE_ESTIMATE (PX4)
+    heading_reset_min_interval: float = _f(10.0, "s")  # at most one command per interval
+    heading_reset_period: float = _f(0.0, "s")  # also repeat this often while aligned; 0 = no
+    target_sysid: int = _f(1)  # the autopilot that gets the command
+    target_compid: int = _f(1)  # 1 = MAV_COMP_ID_AUTOPILOT1
+    estimator_status: bool = _f(False)  # ESTIMATOR_STATUS with each GPS_INPUT (or at its rate)
+
+    @property
+    def any(self) -> bool:
+        return self.gps_input or self.heading_reset or self.estimator_status
+
+    def validate(self) -> None:
+        s = "autopilot"
+        check(0.0 < self.gps_input_rate <= 50.0, s, "gps_input_rate_hz",
+              "a rate in Hz in (0, 50]")
+        check(self.max_gnss_age > 0.0, s, "max_gnss_age_s", "a number of seconds > 0")
+        check(self.heading_reset_min_interval >= 1.0, s, "heading_reset_min_interval_s",
+              "a number of seconds >= 1 (the autopilot resets its heading on each command)")
+        check(self.heading_reset_period == 0.0
+              or self.heading_reset_period >= self.heading_reset_min_interval, s,
+              "heading_reset_period_s", "0 or at least heading_reset_min_interval_s")
+        check(1 <= self.target_sysid <= 255 and 0 <= self.target_compid <= 255, s,
+              "target_sysid/target_compid", "1..255 / 0..255")
+
+
+@dataclass(frozen=True)
 class DronecanSection:
     enabled: bool = _f(False)
     interface: str = _f("socketcan")
@@ -173,10 +209,17 @@ class ZenohSection:
     multicast_scouting: bool = _f(False)
     attitude_rate: float = _f(50.0, "hz")  # attitude samples per second of sensor time
     status: bool = _f(True)
+    # docs/daemon.md "Zenoh threat model": refuse data pushed in and admin-space queries
+    access_control: bool = _f(True)
+    user: str = _f("")  # presented when navd connects out ("" = none)
+    password_file: str = _f("")  # that user's password, first line (kept out of navd.toml)
+    users_file: str = _f("")  # user:password lines a peer must match to connect ("" = any)
 
     def validate(self) -> None:
         check(0.0 < self.attitude_rate <= 1000.0, "zenoh", "attitude_rate_hz",
               "a rate in Hz in (0, 1000]")
+        check(not self.user or bool(self.password_file), "zenoh", "password_file",
+              "set when user is (a file holding the password)")
         if not self.vehicle or ZENOH_BAD_CHUNK_CHARS & set(self.vehicle):
             raise ConfigError(f"[zenoh] vehicle: vehicle {self.vehicle!r} must be one key "
                               "chunk (no / * $ ? #)")
@@ -211,6 +254,21 @@ class Ros2Section:
 
 
 @dataclass(frozen=True)
+class FoxgloveSection:
+    """``[foxglove]``: a live Foxglove WebSocket server (navd/io/foxglove_ws.py)."""
+
+    enabled: bool = _f(False)
+    host: str = _f("127.0.0.1")  # no authentication: keep it on loopback
+    port: int = _f(8765)
+    rate: float = _f(10.0, "hz")  # solutions per second of sensor time
+
+    def validate(self) -> None:
+        check(0 <= self.port <= 65535, "foxglove", "port", "a TCP port 0..65535 (0 = any free)")
+        check(0.0 < self.rate <= 1000.0, "foxglove", "rate_hz", "a rate in Hz in (0, 1000]")
+        check(bool(self.host), "foxglove", "host", "an address to listen on")
+
+
+@dataclass(frozen=True)
 class BiasStoreSection:
     """``[bias_store]``: learned IMU biases kept between runs (:mod:`navd.daemon.bias_store`)."""
 
@@ -237,9 +295,11 @@ class BiasStoreSection:
 _SECTIONS: dict[str, type[Any]] = {
     "daemon": DaemonSection,
     "mavlink": MavlinkSection,
+    "autopilot": AutopilotSection,
     "dronecan": DronecanSection,
     "zenoh": ZenohSection,
     "ros2": Ros2Section,
+    "foxglove": FoxgloveSection,
     "bias_store": BiasStoreSection,
 }
 # sections that configure `navd run` only (inputs, outputs, the service): a replay reads its
@@ -257,9 +317,11 @@ class DaemonConfig:
 
     daemon: DaemonSection = field(default_factory=DaemonSection)
     mavlink: MavlinkSection = field(default_factory=MavlinkSection)
+    autopilot: AutopilotSection = field(default_factory=AutopilotSection)
     dronecan: DronecanSection = field(default_factory=DronecanSection)
     zenoh: ZenohSection = field(default_factory=ZenohSection)
     ros2: Ros2Section = field(default_factory=Ros2Section)
+    foxglove: FoxgloveSection = field(default_factory=FoxgloveSection)
     bias_store: BiasStoreSection = field(default_factory=BiasStoreSection)
     nav: NavConfig = field(default_factory=NavConfig)
     tables: dict[str, Any] = field(default_factory=dict)
@@ -287,6 +349,9 @@ class DaemonConfig:
                               f"{sorted(known)}")
         kw: dict[str, Any] = {name: build_section(sec, name, data.get(name, {}))
                               for name, sec in _SECTIONS.items()}
+        if kw["autopilot"].any and not (kw["mavlink"].enabled and kw["mavlink"].send):
+            raise ConfigError("[autopilot] needs a MAVLink output: [mavlink] enabled with a "
+                              'send link (to the autopilot, often send = "same")')
         has_input = (kw["mavlink"].enabled and kw["mavlink"].listen) or kw["dronecan"].enabled
         if need_input and not has_input:
             raise ConfigError("no input: enable [mavlink] (with listen) or [dronecan]")

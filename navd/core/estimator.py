@@ -535,6 +535,8 @@ class Estimator:
                   math.sqrt(max(float(P[8, 8]), 0.0)))
         vel_sd = (math.sqrt(max(float(P[3, 3]), 0.0)), math.sqrt(max(float(P[4, 4]), 0.0)),
                   math.sqrt(max(float(P[5, 5]), 0.0)))
+        age = (self.t_us - self._last_gnss_t_us
+               if self._last_gnss_t_us >= 0 and self.t_us >= 0 else -1)
         return NavSolution(
             t_us=self.t_us, quat_nb=(qw, qx, qy, qz), roll_rad=r, pitch_rad=p, yaw_rad=y,
             lat_rad=float(self.pos[0]), lon_rad=float(self.pos[1]), alt_m=float(self.pos[2]),
@@ -543,7 +545,15 @@ class Estimator:
             accel_bias_mps2=(float(ba[0]), float(ba[1]), float(ba[2])),
             heading_aligned=self.heading_aligned,
             rate_b=(float(w[0]), float(w[1]), float(w[2])), pos_sd_m=pos_sd,
-            vel_sd_mps=vel_sd)
+            vel_sd_mps=vel_sd, gnss_age_us=age, heading_resets=self.heading_resets)
+
+    @property
+    def heading_resets(self) -> int:
+        """Heading resets so far (:attr:`NavSolution.heading_resets`): yaw resets to the
+        course, resets after a velocity lock-out (they widen and re-seed attitude), and
+        restarts."""
+        c = self.counters
+        return c.get("heading_reset", 0) + c.get("reset_lockout_vel", 0) + max(self.restarts, 0)
 
     @property
     def heading_held(self) -> bool:

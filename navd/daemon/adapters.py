@@ -6,11 +6,13 @@ uses both, translates: SI section attributes in, each adapter's own settings dat
 
 from __future__ import annotations
 
+from navd.config import ConfigError
 from navd.config.daemon import DronecanSection, MavlinkSection, ZenohSection
 from navd.core.plausible import Limits
 from navd.io.dronecan import DronecanConfig
 from navd.io.mavlink import MavlinkInputConfig
 from navd.io.zenoh import ZenohConfig
+from navd.io.zenoh_security import read_password, read_usernames
 
 __all__ = ["dronecan_bus_config", "mavlink_input_config", "zenoh_session_config"]
 
@@ -52,5 +54,16 @@ def dronecan_bus_config(d: DronecanSection, limits: Limits | None = None) -> Dro
 
 
 def zenoh_session_config(z: ZenohSection) -> ZenohConfig:
+    """Raises ConfigError when the password or users file cannot be read."""
+    password = ""
+    try:
+        if z.user:
+            password = read_password(z.password_file)
+        if z.users_file:
+            read_usernames(z.users_file)  # unreadable or empty: say so before zenoh does
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"[zenoh] password_file/users_file: {exc}") from None
     return ZenohConfig(vehicle=z.vehicle, listen=z.listen, connect=z.connect,
-                       multicast_scouting=z.multicast_scouting)
+                       multicast_scouting=z.multicast_scouting,
+                       acl="publisher" if z.access_control else "off", user=z.user,
+                       password=password, users_file=z.users_file)

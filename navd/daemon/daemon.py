@@ -34,6 +34,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from navd.config import ConfigError
 from navd.config.aiding import NavConfig
 from navd.config.daemon import DaemonConfig
 from navd.core.aiding.dov import dov_status
@@ -44,7 +45,9 @@ from navd.daemon.sinks import (
     MAV_STATE_ACTIVE,
     MAV_STATE_CRITICAL,
     MAV_STATE_STANDBY,
+    AutopilotSink,
     DronecanSink,
+    FoxgloveSink,
     MavlinkSink,
     Ros2Sink,
     Sink,
@@ -54,7 +57,9 @@ from navd.daemon.sources import InputOpenError, SampleQueue, Sources
 from navd.diag import RateLimitedLog
 from navd.io.common import Sample
 from navd.io.dronecan import DronecanEncoder
+from navd.io.foxglove_mcap import NavMcapWriter
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink
+from navd.io.mavlink.autopilot import AutopilotPolicy, HeadingResetSchedule
 from navd.io.recording import RecordingError, RecordingWriter
 from navd.io.zenoh import ZenohPublisher, attitude_key, status_key
 from navd.pipeline import build_estimator, output_instant
@@ -142,7 +147,8 @@ class Daemon:
 
     def __init__(self, cfg: DaemonConfig, *, record_path: str | None = None,
                  notifier: SdNotifier | None = None, extra_sinks: Sequence[Sink] = (),
-                 handle_signals: bool = True) -> None:
+                 handle_signals: bool = True, mcap_path: str | None = None,
+                 mcap_rate_hz: float = 10.0) -> None:
         tables, self.bias_store_state = bias_store.apply(cfg.tables, cfg.bias_store,
                                                          cfg.estimator.imu, time.time())
         if self.bias_store_state.startswith("refused"):
@@ -159,7 +165,12 @@ class Daemon:
         self.sources = Sources(cfg, self.queue)
         self.sinks: list[Sink] = []
         self.mavlink_sink: MavlinkSink | None = None
+        self.autopilot_sink: AutopilotSink | None = None
         self.zenoh_sink: ZenohSink | None = None
+        self.mcap_sink: FoxgloveSink | None = None
+        self.foxglove_sink: FoxgloveSink | None = None
+        self.mcap_path = mcap_path
+        self.mcap_rate_hz = mcap_rate_hz
         self.recorder: RecordingWriter | None = None
         self.record_path = record_path
         self.record_stopped = ""  # why recording stopped early, if it did
@@ -244,7 +255,11 @@ class Daemon:
         c = self.cfg
         if c.zenoh.enabled:
             try:
-                session = ZenohPublisher(zenoh_session_config(c.zenoh))
+                zcfg = zenoh_session_config(c.zenoh)
+            except ConfigError as exc:
+                raise StartupError(str(exc)) from exc
+            try:
+                session = ZenohPublisher(zcfg)
             except Exception as exc:  # zenoh.ZError: listen/connect endpoints
                 key = "zenoh.listen" if c.zenoh.listen else "zenoh.connect"
                 raise StartupError(explain_open_error(
@@ -265,11 +280,16 @@ class Daemon:
             except Exception as exc:
                 raise StartupError(explain_open_error("mavlink.send", m.send, exc)) from exc
             assert link is not None  # config validation: "same" needs a listen link
+            encoder = MavlinkEncoder(m.sysid, m.compid, m.geoid_sep)
             self.mavlink_sink = MavlinkSink(
-                link, MavlinkEncoder(m.sysid, m.compid, m.geoid_sep), m.attitude_rate,
+                link, encoder, m.attitude_rate,
                 quaternion=m.attitude_quaternion, global_position=m.global_position,
                 own_link=not shared)
+            if c.autopilot.any:
+                self.autopilot_sink = self._autopilot_sink(link, encoder)
         sinks: list[Sink] = [self.mavlink_sink] if self.mavlink_sink is not None else []
+        if self.autopilot_sink is not None:
+            sinks.append(self.autopilot_sink)
         d = c.dronecan
         if d.enabled and d.solution_out and self.sources.dronecan is not None:
             sinks.append(DronecanSink(self.sources.dronecan, DronecanEncoder(d.node_id),
@@ -279,6 +299,30 @@ class Daemon:
             if c.ros2.enabled:  # config validation: [ros2] needs [zenoh]
                 sinks.append(Ros2Sink(self.zenoh_sink.publisher.session, c.ros2,
                                       c.nav.estimator.init.aligned_sd))
+        if self.mcap_path:
+            try:
+                writer = NavMcapWriter(self.mcap_path, aligned_sd_rad=c.nav.estimator.init
+                                       .aligned_sd, status=True)
+            except OSError as exc:
+                raise StartupError(f"--mcap {self.mcap_path}: cannot write: "
+                                   f"{exc.strerror or exc} (does its directory exist?)"
+                                   ) from exc
+            self.mcap_sink = FoxgloveSink(writer, self.mcap_rate_hz, "mcap")
+            sinks.append(self.mcap_sink)
+        f = c.foxglove
+        if f.enabled:
+            try:
+                from navd.io.foxglove_ws import FoxgloveLive  # optional: navd[foxglove]
+            except ImportError as exc:
+                raise StartupError("[foxglove] enabled needs the Foxglove SDK: pip install "
+                                   "'navd[foxglove]'") from exc
+            try:
+                live = FoxgloveLive(host=f.host, port=f.port,
+                                    aligned_sd_rad=c.nav.estimator.init.aligned_sd)
+            except Exception as exc:  # the SDK's error for a port in use, bad host
+                raise StartupError(explain_open_error("foxglove.port", f.port, exc)) from exc
+            self.foxglove_sink = FoxgloveSink(live, f.rate, "foxglove")
+            sinks.append(self.foxglove_sink)
         self.sinks = sinks + self._extra
         if self.record_path:
             rate = 1e6 / self.sinks[0].schedule.period_us if self.sinks else m.attitude_rate
@@ -291,6 +335,17 @@ class Daemon:
             _log.info("recording pushed samples to %s", self.record_path)
         return inputs
 
+    def _autopilot_sink(self, link: MavlinkLink, encoder: MavlinkEncoder) -> AutopilotSink:
+        a, m = self.cfg.autopilot, self.cfg.mavlink
+        policy = AutopilotPolicy(aligned_sd=self.cfg.nav.estimator.init.aligned_sd,
+                                 max_gnss_age_us=round(a.max_gnss_age * 1e6), uere_m=m.uere,
+                                 geoid_sep_m=m.geoid_sep)
+        schedule = (HeadingResetSchedule(a.heading_reset_min_interval, a.heading_reset_period)
+                    if a.heading_reset else None)
+        return AutopilotSink(link, encoder, a.gps_input_rate, policy, gps_input=a.gps_input,
+                             estimator_status=a.estimator_status, heading_reset=schedule,
+                             target=(a.target_sysid, a.target_compid))
+
     def output_destinations(self) -> list[str]:
         """Where each output goes, for the ready line: an operator wiring a consumer needs
         the address and the key, not only the sink's name."""
@@ -302,6 +357,13 @@ class Daemon:
                 dest = (f"the input link {c.mavlink.listen}" if c.mavlink.send == "same"
                         else c.mavlink.send)
                 out.append(f"mavlink ATTITUDE {hz:g} Hz + HEARTBEAT -> {dest}")
+            elif sink is self.autopilot_sink:
+                a = c.autopilot
+                what = [n for n, on in (("GPS_INPUT", a.gps_input),
+                                        ("ESTIMATOR_STATUS", a.estimator_status),
+                                        ("EXTERNAL_ATTITUDE_ESTIMATE", a.heading_reset)) if on]
+                out.append(f"autopilot {' + '.join(what)} {hz:g} Hz -> "
+                           f"{c.mavlink.send} (target {a.target_sysid}/{a.target_compid})")
             elif sink is self.zenoh_sink:
                 ends = ", ".join([*(f"listen {e}" for e in c.zenoh.listen),
                                   *(f"connect {e}" for e in c.zenoh.connect)]) or "scouting"
@@ -312,6 +374,13 @@ class Daemon:
                 topics = " ".join(p.topic for p in sink.pubs.values())
                 out.append(f"ros2 node {sink.node.namespace.rstrip('/')}/{sink.node.node} "
                            f"(domain {c.ros2.domain_id}) {topics} {hz:g} Hz")
+            elif sink is self.foxglove_sink:
+                out.append(f"foxglove ws://{c.foxglove.host}:{c.foxglove.port} "
+                           f"/navd/pose, /navd/location, /navd/heading {hz:g} Hz + "
+                           "/navd/status")
+            elif sink is self.mcap_sink:
+                out.append(f"mcap /navd/pose, /navd/location, /navd/heading {hz:g} Hz + "
+                           f"/navd/status -> {self.mcap_path}")
             elif isinstance(sink, DronecanSink):
                 out.append(f"dronecan Solution {hz:g} Hz as node {c.dronecan.node_id} on "
                            f"{c.dronecan.interface}:{c.dronecan.channel}")
@@ -355,6 +424,7 @@ class Daemon:
         status = self.status()
         if self.zenoh_sink is not None and self.cfg.zenoh.status:
             self.zenoh_sink.publish_status(status)
+        self._foxglove_status()
         self._close()
         _log.info("stopped (%s); final stats %s", self.stop_reason or "error",
                   json.dumps(status, separators=(",", ":"), default=str))
@@ -459,6 +529,7 @@ class Daemon:
             state = self._log_state_change(state, self.state())
             if self.zenoh_sink is not None and self.cfg.zenoh.status:
                 self.zenoh_sink.publish_status(self.status())
+            self._foxglove_status()
             self.notifier.status(self.status_line())
             now_counts = dict(self.est.counters)
             for name, n in now_counts.items():
@@ -477,6 +548,17 @@ class Daemon:
             if time.monotonic() >= next_log:
                 next_log += d.log_period
                 _log.info("%s", self.log_line())
+
+    def _foxglove_status(self) -> None:
+        for sink in (self.mcap_sink, self.foxglove_sink):
+            if sink is None:
+                continue
+            try:
+                sink.publish_status(self.status())
+            except (OSError, ValueError) as exc:  # a full disk must not end navigation
+                self.sink_errors += 1
+                self.rlog.warn(f"sink_{sink.name}_status", "%s status not written: %s",
+                               sink.name, exc)
 
     def _log_state_change(self, old: str, new: str) -> str:
         """Say at once when input stops or resumes, or output stops, rather than in the

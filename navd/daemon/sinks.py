@@ -2,6 +2,8 @@
 :class:`~navd.pipeline.OutputSchedule`, and keeps receive -> send latency statistics.
 
 MavlinkSink    ATTITUDE + ATTITUDE_QUATERNION (+ GLOBAL_POSITION_INT), HEARTBEAT task
+AutopilotSink  GPS_INPUT (+ yaw), ESTIMATOR_STATUS, MAV_CMD_EXTERNAL_ATTITUDE_ESTIMATE
+FoxgloveSink   Foxglove channels into an MCAP file (``--mcap``) or a live WebSocket server
 ZenohSink      navd/<vehicle>/attitude per output, navd/<vehicle>/status from the daemon
 Ros2Sink       ROS 2 Imu, NavSatFix, Odometry and heading diagnostics on the Zenoh session
 DronecanSink   uavcan.equipment.ahrs.Solution on the input bus
@@ -14,13 +16,19 @@ import logging
 import math
 import time
 from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from navd.diag import Counters, RateLimitedLog
 from navd.io.dronecan import DronecanEncoder, DronecanLink
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink, MavlinkSender
+from navd.io.mavlink.autopilot import (
+    AutopilotPolicy,
+    HeadingResetSchedule,
+    estimator_flags,
+    gps_input_frame,
+)
 from navd.io.zenoh import ZenohPublisher
 from navd.pipeline import OutputSchedule
 from navd.types import NavSolution
@@ -28,8 +36,17 @@ from navd.types import NavSolution
 if TYPE_CHECKING:
     from navd.config.daemon import Ros2Section
 
-__all__ = ["CallbackSink", "DronecanSink", "LatencyStats", "MavlinkSink", "Ros2Sink", "Sink",
-           "ZenohSink"]
+__all__ = [
+    "AutopilotSink",
+    "CallbackSink",
+    "DronecanSink",
+    "FoxgloveSink",
+    "LatencyStats",
+    "MavlinkSink",
+    "Ros2Sink",
+    "Sink",
+    "ZenohSink",
+]
 
 _log = logging.getLogger(__name__)
 
@@ -120,6 +137,58 @@ class MavlinkSink(Sink):
     def close(self) -> None:
         if self._own_link:
             self.link.close()
+
+
+class AutopilotSink(Sink):
+    """navd as an autopilot's GPS and heading source (docs/autopilot.md), on the MAVLink
+    output link and with the MAVLink sink's encoder (one source, one sequence counter)."""
+
+    name = "autopilot"
+
+    def __init__(self, link: MavlinkLink, encoder: MavlinkEncoder, rate_hz: float,
+                 policy: AutopilotPolicy, *, gps_input: bool, estimator_status: bool,
+                 heading_reset: HeadingResetSchedule | None, target: tuple[int, int] = (1, 1),
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        super().__init__(rate_hz)
+        self.link = link
+        self.encoder = encoder
+        self.policy = policy
+        self.gps_input = gps_input
+        self.estimator_status = estimator_status
+        self.heading_reset = heading_reset
+        self.target = target
+        self._clock = clock
+        self.sent = {"gps_input": 0, "estimator_status": 0, "heading_reset": 0,
+                     "gps_input_yaw": 0, "nonfinite": 0}
+
+    def publish(self, sol: NavSolution) -> None:
+        enc, pol = self.encoder, self.policy
+        if self.gps_input:
+            try:
+                frame = gps_input_frame(enc, sol, pol)
+            except ValueError:  # no finite position: nothing a GPS could say
+                self.sent["nonfinite"] += 1
+            else:
+                self.link.send(frame)
+                self.sent["gps_input"] += 1
+                self.sent["gps_input_yaw"] += sol.heading_good(pol.aligned_sd)
+        if self.estimator_status:
+            sd_n, sd_e, sd_d = sol.pos_sd_m
+            self.link.send(enc.encode_estimator_status(
+                max(sol.t_us, 0), estimator_flags(sol, pol), math.hypot(sd_n, sd_e), sd_d))
+            self.sent["estimator_status"] += 1
+        hr = self.heading_reset
+        if hr is not None and hr.due(sol.heading_good(pol.aligned_sd), sol.heading_resets,
+                                     self._clock()):
+            self.link.send(enc.encode_external_attitude_estimate(
+                *self.target, math.degrees(sol.yaw_rad) % 360.0,
+                math.degrees(sol.att_sd_rad[2])))
+            self.sent["heading_reset"] += 1
+        self.published += 1
+
+    def counters(self) -> dict[str, int]:
+        deferred = self.heading_reset.deferred if self.heading_reset is not None else 0
+        return {**self.sent, "heading_reset_deferred": deferred, "published": self.published}
 
 
 MAV_STATE_STANDBY: int = mavlink.MAV_STATE_STANDBY
@@ -219,6 +288,44 @@ class Ros2Sink(Sink):
 
     def close(self) -> None:
         self.node.close()
+
+
+class FoxgloveWriter(Protocol):
+    """NavMcapWriter (file) or FoxgloveLive (WebSocket server)."""
+
+    messages: int
+
+    def write_solution(self, sol: NavSolution, log_time_ns: int) -> None: ...
+
+    def write_status(self, status: Mapping[str, Any], log_time_ns: int) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class FoxgloveSink(Sink):
+    """Solutions (and the daemon's status) as Foxglove channels, into an MCAP file
+    (``name`` "mcap") or a live WebSocket server ("foxglove"); the log time is the host's
+    wall clock, each message's timestamp the sensor time."""
+
+    def __init__(self, writer: FoxgloveWriter, rate_hz: float, name: str,
+                 clock_ns: Callable[[], int] = time.time_ns) -> None:
+        super().__init__(rate_hz)
+        self.writer = writer
+        self.name = name
+        self._clock_ns = clock_ns
+
+    def publish(self, sol: NavSolution) -> None:
+        self.writer.write_solution(sol, self._clock_ns())
+        self.published += 1
+
+    def publish_status(self, status: Mapping[str, Any]) -> None:
+        self.writer.write_status(status, self._clock_ns())
+
+    def counters(self) -> dict[str, int]:
+        return {"published": self.published, "messages": self.writer.messages}
+
+    def close(self) -> None:
+        self.writer.close()
 
 
 class DronecanSink(Sink):

@@ -213,7 +213,8 @@ class SolutionJsonlWriter:
             "lon_rad": s.lon_rad, "alt_m": s.alt_m, "vel_n": s.vel_n,
             "att_sd_rad": s.att_sd_rad, "gyro_bias_rps": s.gyro_bias_rps,
             "accel_bias_mps2": s.accel_bias_mps2, "heading_aligned": s.heading_aligned,
-            "rate_b": s.rate_b, "pos_sd_m": s.pos_sd_m, "vel_sd_mps": s.vel_sd_mps}) + "\n")
+            "rate_b": s.rate_b, "pos_sd_m": s.pos_sd_m, "vel_sd_mps": s.vel_sd_mps,
+            "gnss_age_us": s.gnss_age_us, "heading_resets": s.heading_resets}) + "\n")
 
 
 _NAN3 = (math.nan, math.nan, math.nan)  # files written before the sigmas were recorded
@@ -237,5 +238,8 @@ def read_solutions_jsonl(path: str | Path) -> list[NavSolution]:
                 att_sd_rad=_t3(d["att_sd_rad"]), gyro_bias_rps=_t3(d["gyro_bias_rps"]),
                 accel_bias_mps2=_t3(d["accel_bias_mps2"]),
                 heading_aligned=bool(d["heading_aligned"]), rate_b=_t3(d["rate_b"]),
-                pos_sd_m=_t3(d.get("pos_sd_m", _NAN3)), vel_sd_mps=_t3(d.get("vel_sd_mps", _NAN3))))
+                pos_sd_m=_t3(d.get("pos_sd_m", _NAN3)), vel_sd_mps=_t3(d.get("vel_sd_mps", _NAN3)),
+                # files written before these were recorded: the NavSolution defaults
+                gnss_age_us=int(d.get("gnss_age_us", -1)),
+                heading_resets=int(d.get("heading_resets", 0))))
     return out

@@ -37,6 +37,7 @@ import zenoh
 
 from navd.config.daemon import ZENOH_BAD_CHUNK_CHARS
 from navd.diag import Counters
+from navd.io.zenoh_security import consumer_acl, publisher_acl, read_usernames, usrpwd
 from navd.types import NavSolution
 
 __all__ = [
@@ -60,10 +61,21 @@ class ZenohConfig:
     listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
     connect: tuple[str, ...] = ()
     multicast_scouting: bool = False
+    # security (navd.io.zenoh_security, docs/daemon.md "Zenoh threat model")
+    acl: str = "off"  # "off" | "publisher" (navd's session) | "consumer" (a subscriber's)
+    user: str = ""  # presented when connecting ("" = no credentials)
+    password: str = ""
+    users_file: str = ""  # user:password lines accepted on listen endpoints ("" = anyone)
+    publisher_user: str = "navd"  # consumer ACL: the only user that may put navd/<vehicle>/**
 
     def __post_init__(self) -> None:
         if not self.vehicle or ZENOH_BAD_CHUNK_CHARS & set(self.vehicle):
             raise ValueError(f"vehicle {self.vehicle!r} must be one key chunk (no / * $ ? #)")
+        if self.acl not in ("off", "publisher", "consumer"):
+            raise ValueError(f"acl {self.acl!r}: expected off, publisher or consumer")
+        if self.acl == "consumer" and not self.users_file:
+            raise ValueError("a consumer ACL needs a users_file: it tells navd from other "
+                             "peers by authenticated user name")
 
     def to_zenoh(self) -> Any:
         c = zenoh.Config()
@@ -71,6 +83,18 @@ class ZenohConfig:
         c.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
         c.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         c.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        # the admin space (@/<zid>/...) tells a local process our config and peers: off,
+        # stated rather than left to the library's default
+        c.insert_json5("adminspace/enabled", "false")
+        auth = usrpwd(self.user, self.password, self.users_file)
+        if auth:
+            c.insert_json5("transport/auth/usrpwd", json.dumps(auth))
+        if self.acl == "publisher":
+            c.insert_json5("access_control", json.dumps(publisher_acl()))
+        elif self.acl == "consumer":
+            acl = consumer_acl(self.vehicle, self.publisher_user,
+                               read_usernames(self.users_file))
+            c.insert_json5("access_control", json.dumps(acl))
         return c
 
 

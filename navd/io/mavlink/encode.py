@@ -3,7 +3,9 @@
 Outputs
     ATTITUDE, ATTITUDE_QUATERNION (q1..q4 = w, x, y, z of C_b^n), HEARTBEAT
     (MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID), GLOBAL_POSITION_INT (alt MSL mm =
-    ellipsoid height - ``geoid_sep_m``; hdg cdeg 0..35999).
+    ellipsoid height - ``geoid_sep_m``; hdg cdeg 0..35999); for an autopilot
+    (:mod:`navd.io.mavlink.autopilot` decides the contents): GPS_INPUT, COMMAND_LONG
+    MAV_CMD_EXTERNAL_ATTITUDE_ESTIMATE, ESTIMATOR_STATUS.
 
 Only frame building lives here; when and where frames go is :class:`navd.io.mavlink.link.
 MavlinkSender`'s job, so the encoder can be tested and benchmarked without a socket.
@@ -18,9 +20,11 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from navd.types import NavSolution
 
-__all__ = ["MavlinkEncoder"]
+__all__ = ["MAV_CMD_EXTERNAL_ATTITUDE_ESTIMATE", "MavlinkEncoder"]
 
 UINT16_MAX = 0xFFFF  # "unknown" in GLOBAL_POSITION_INT.hdg
+# MAVLink development.xml (mavlink/mavlink PR #2334, 2025); pymavlink 2.4.x has no constant
+MAV_CMD_EXTERNAL_ATTITUDE_ESTIMATE = 620
 
 
 def _clamp_int(x: float, lo: int, hi: int) -> int:
@@ -107,5 +111,52 @@ class MavlinkEncoder:
                 _clamp_int(ve * 100.0, *i16),
                 _clamp_int(vd * 100.0, *i16),
                 hdg,
+            )
+        )
+
+    def encode_gps_input(
+        self, *, time_usec: int, ignore_flags: int, fix_type: int, lat_deg: float,
+        lon_deg: float, alt_msl_m: float, hdop: float, vdop: float,
+        vel_n: tuple[float, float, float], speed_acc_mps: float, horiz_acc_m: float,
+        vert_acc_m: float, satellites: int, yaw_cdeg: int,
+    ) -> bytes:
+        """GPS_INPUT (232).  ``yaw_cdeg``: 0 = no yaw, else 1..36000 (36000 = north), as
+        ArduPilot's AP_GPS_MAV reads it.  Raises ValueError on non-finite lat/lon."""
+        if not 0 <= yaw_cdeg <= 36000:
+            raise ValueError(f"GPS_INPUT yaw {yaw_cdeg} cdeg outside 0..36000")
+        i32 = (-(2**31), 2**31 - 1)
+        return self._pack(
+            self._mav.gps_input_encode(
+                time_usec & 0xFFFFFFFFFFFFFFFF, 0, ignore_flags, 0, 0, fix_type,
+                _clamp_int(lat_deg * 1e7, *i32), _clamp_int(lon_deg * 1e7, *i32),
+                alt_msl_m, hdop, vdop, vel_n[0], vel_n[1], vel_n[2], speed_acc_mps,
+                horiz_acc_m, vert_acc_m, satellites, yaw_cdeg,
+            )
+        )
+
+    def encode_external_attitude_estimate(
+        self, target_system: int, target_component: int, yaw_deg: float, yaw_acc_deg: float
+    ) -> bytes:
+        """COMMAND_LONG MAV_CMD_EXTERNAL_ATTITUDE_ESTIMATE with the heading only: param1/2
+        (roll, pitch) and param4 (their accuracy) NaN = not given, param3 yaw deg from true
+        north, param7 its 1-sigma in deg; param5/6 reserved (NaN)."""
+        nan = math.nan
+        return self._pack(
+            self._mav.command_long_encode(
+                target_system, target_component, MAV_CMD_EXTERNAL_ATTITUDE_ESTIMATE, 0,
+                nan, nan, yaw_deg, nan, nan, nan, yaw_acc_deg,
+            )
+        )
+
+    def encode_estimator_status(
+        self, time_usec: int, flags: int, pos_horiz_acc_m: float, pos_vert_acc_m: float
+    ) -> bytes:
+        """ESTIMATOR_STATUS (230).  The innovation test ratios are not computed by navd and
+        go out as NaN (a ratio of 0 would claim perfect agreement)."""
+        nan = math.nan
+        return self._pack(
+            self._mav.estimator_status_encode(
+                time_usec & 0xFFFFFFFFFFFFFFFF, flags, nan, nan, nan, nan, nan, nan,
+                pos_horiz_acc_m, pos_vert_acc_m,
             )
         )
