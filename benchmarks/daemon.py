@@ -3,7 +3,7 @@
 
     python benchmarks/daemon.py [--duration 60] [--sweep 2000,4000,8000,16000,32000]
                                 [--sweep-duration 5] [--json PATH] [--set KEY=VALUE]
-                                [--profile PATH]
+                                [--profile PATH] [--py-spy PATH]
 
 Figures (issue 18 targets: <= 5 % of one core, p99 IMU-in -> ATTITUDE-out <= 2 ms,
 no loss):
@@ -20,6 +20,8 @@ no loss):
   --profile    runs the daemon under cProfile (writes PATH, prints the functions with the
                most own time); profiling slows it down, so take CPU and latency figures
                from a run without it.
+  --py-spy     samples the running daemon with py-spy during the 1 kHz phase only (little
+               overhead; needs py-spy installed and ptrace allowed).
 
 The scenario is car480 resampled to a 1 kHz IMU; frames are encoded before the clock starts,
 so the sender's cost is a sendto per frame.
@@ -214,6 +216,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="passed to navd run, e.g. daemon.event_loop=asyncio")
     ap.add_argument("--profile", metavar="PATH",
                     help="run navd under cProfile, write the stats to PATH, print a summary")
+    ap.add_argument("--py-spy", metavar="PATH", dest="py_spy",
+                    help="sample navd with py-spy (if installed) during the 1 kHz phase, "
+                         "write the collapsed stacks to PATH, print a summary")
     a = ap.parse_args(argv)
     sweep = [float(x) for x in a.sweep.split(",") if x.strip()]
     # The receiver thread shares the GIL with the pacing loop; at the default 5 ms switch
@@ -248,9 +253,12 @@ def main(argv: list[str] | None = None) -> int:
         i0, w0 = cpu_s(proc.pid), time.monotonic()
         time.sleep(3.0)
         idle_pct = 100.0 * (cpu_s(proc.pid) - i0) / (time.monotonic() - w0)
+        spy = start_py_spy(proc.pid, a.py_spy, a.duration) if a.py_spy else None
         (u0, s0), c0 = cpu_split_s(proc.pid), cpu_s(proc.pid)
         n_imu, wall = send_paced(sock, addr, frames[:n_main], 1.0, sent_at)
         (u1, s1), c1 = cpu_split_s(proc.pid), cpu_s(proc.pid)
+        if spy is not None:
+            spy.wait(60)
         time.sleep(0.5)
         st = status.fresh()
         e2e = [(rx.got[ms] - sent_at[ms]) * 1e-3 for ms in sent_at if ms in rx.got]
@@ -344,9 +352,53 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {what:<{w}} | {val:>22} | {target:>8} |")
     if a.profile:
         results["profile_top"] = profile_summary(a.profile)
+    if a.py_spy and Path(a.py_spy).exists():
+        results["py_spy_top"] = py_spy_summary(a.py_spy)
     if a.json:
         Path(a.json).write_text(json.dumps(results, indent=2) + "\n")
     return 0
+
+
+def start_py_spy(pid: int, path: str, duration_s: float) -> subprocess.Popen[bytes] | None:
+    """py-spy sampling ``pid`` for ``duration_s`` into ``path`` (collapsed stacks, idle
+    samples left out); None if py-spy is not installed."""
+    exe = Path(sys.executable).with_name("py-spy")
+    if not exe.exists():
+        print("py-spy not installed: no sampling profile", file=sys.stderr)
+        return None
+    return subprocess.Popen([str(exe), "record", "-p", str(pid), "-d", str(int(duration_s)),
+                             "-r", "500", "-f", "raw", "-o", path, "--nonblocking"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def py_spy_summary(path: str, n: int = 15) -> dict[str, Any]:
+    """Own samples per function and the share of the main paths, from collapsed stacks."""
+    own: dict[str, int] = {}
+    incl: dict[str, int] = {}
+    total = 0
+    for line in Path(path).read_text().splitlines():
+        stack, _, count = line.rpartition(" ")
+        if not stack or not count.isdigit():
+            continue
+        k = int(count)
+        total += k
+        frames = stack.split(";")
+        leaf = frames[-1].split(" (")[0] + " (" + frames[-1].rsplit("/", 1)[-1]
+        own[leaf] = own.get(leaf, 0) + k
+        for name in {f.split(" (")[0] for f in frames}:
+            incl[name] = incl.get(name, 0) + k
+    paths = {name: round(100.0 * incl.get(name, 0) / max(total, 1), 1)
+             for name in ("datagram_received", "feed_datagram", "_estimate", "push",
+                          "send_solution", "_publish", "put")}
+    top = sorted(own.items(), key=lambda kv: kv[1], reverse=True)[:n]
+    print(f"\npy-spy ({path}): {total} busy samples in the 1 kHz phase; inclusive share "
+          f"of: {paths}")
+    print(f"| {'function (own samples)':<70} | {'samples':>7} | {'%':>5} |")
+    print(f"|{'-' * 72}|{'-' * 9}|{'-' * 7}|")
+    for name, k in top:
+        print(f"| {name[-70:]:<70} | {k:>7} | {100.0 * k / max(total, 1):>5.1f} |")
+    return {"busy_samples": total, "inclusive_pct": paths,
+            "top_own": [{"function": f, "samples": k} for f, k in top]}
 
 
 def profile_summary(path: str, n: int = 15) -> list[dict[str, Any]]:

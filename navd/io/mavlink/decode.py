@@ -1,9 +1,11 @@
 """MAVLink 2 bytes -> navd samples: the input settings, the message tables and the decoder.
 
-Decoding uses the ardupilotmega dialect (a superset of common) so an ArduPilot stream parses
-without "unknown message" noise; everything emitted is from common.xml.  This module owns
-everything between wire bytes and :data:`navd.io.common.Sample`; it opens nothing (links live
-in :mod:`navd.io.mavlink.link`), so log replay (:mod:`navd.io.logs.tlog`) and the daemon share
+Frames are checked against the ardupilotmega dialect's CRC_EXTRA table (a superset of
+common, so an ArduPilot stream has no "unknown message" noise) by
+:mod:`navd.io.mavlink.frame`; the input messages are unpacked straight from their payload
+(:mod:`navd.io.mavlink.wire`), no pymavlink message objects.  This module owns everything
+between wire bytes and :data:`navd.io.common.Sample`; it opens nothing (links live in
+:mod:`navd.io.mavlink.link`), so log replay (:mod:`navd.io.logs.tlog`) and the daemon share
 it unchanged.
 
 Inputs (all converted to SI, NED / FRD, integer microseconds)
