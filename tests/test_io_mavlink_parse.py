@@ -22,7 +22,13 @@ from firmware_sim.transport.mavlink_tx import MavlinkTx
 from navd.io.common import Sample
 from navd.io.mavlink import MavlinkDecoder, MavlinkInputConfig
 from navd.io.mavlink.frame import FrameScanner, Rejects, crc_x25
-from navd.io.mavlink.wire import LAYOUTS, crc_extra_table, fields_dict, max_len_table
+from navd.io.mavlink.wire import (
+    LAYOUTS,
+    crc_extra_table,
+    fields_dict,
+    max_len_table,
+    v1_lengths_table,
+)
 from navd.types import FixType, GnssSample, ImuSample
 
 ALL_IMU = frozenset({"HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "RAW_IMU"})
@@ -43,7 +49,8 @@ def gnss(t_us: int) -> GnssSample:
 
 
 def scanner() -> FrameScanner:
-    return FrameScanner(crc_extra_table(), max_len_table())
+    """Set up as MavlinkDecoder sets up its own."""
+    return FrameScanner(crc_extra_table(), max_len_table(), None, v1_lengths_table())
 
 
 # -- checksum and layouts against pymavlink ----------------------------------------------------
@@ -190,6 +197,7 @@ JUNK = {
     "0xFE": b"\xfe" * 16384,
     "0xFD": b"\xfd" * 16384,
     "FE 00": b"\xfe\x00" * 8192,
+    "FE 01 FD": b"\xfe\x01\xfd" * 5462,  # the worst of ~900 short patterns tried
     "v1 headers": b"\xfe\x00\x00\x00\x00\x00" * 2731,
     "v2 headers": b"\xfd\x01\x00\x00\x00\x00\x00\x00\x00\x00" * 1638,
     "random": random.Random(1).randbytes(16384),
@@ -202,8 +210,8 @@ def test_junk_parse_work_is_linear_with_a_small_constant(name: str, mode: str) -
     """GIVEN 16 kB of junk built to look like frame starts (every byte a start marker, or
     headers of known messages back to back) or random bytes,
     WHEN it is fed as a byte-stream piece or as one datagram,
-    THEN the interpreter executes at most 20 lines per input byte (pymavlink's parser with
-    navd's rescans: ~120 for 0xFE), and nothing is decoded."""
+    THEN the interpreter executes at most 20 lines per input byte (here at most ~17;
+    pymavlink's parser with navd's rescans: ~120 for 0xFE), and nothing is decoded."""
     data = JUNK[name]
     dec = MavlinkDecoder(cfg())
     feed = dec.feed if mode == "stream" else dec.feed_datagram
@@ -377,3 +385,29 @@ def test_daemon_warn_interval_reaches_mavlink_and_dronecan_decoders(
     msgs = [r.getMessage() for r in caplog.records]
     assert len([m for m in msgs if "bad_crc" in m]) == 3, msgs
     assert len([m for m in msgs if "gnss_no_timestamp" in m]) == 3, msgs
+
+
+def test_mavlink1_frame_without_extensions_as_the_c_library_sends_it() -> None:
+    """GIVEN a MAVLink 1 GPS_RAW_INT carrying only its 30 base bytes (the C library leaves
+    the extensions out of MAVLink 1), and one cut at 27 bytes (not a field boundary),
+    WHEN decoded,
+    THEN the first gives a fix with the MSL height (the extension alt_ellipsoid reads 0) and
+    the same fields as pymavlink, and the second is refused before its checksum."""
+    enc = mav.MAVLink(None, 1, 1)
+    full = enc.gps_raw_int_encode(7_000_000, 3, 473_977_000, 85_456_000, 500_000, 120, 200,
+                                  500, 9000, 12, 550_000).pack(enc, force_mavlink1=True)
+
+    def v1(payload: bytes) -> bytes:
+        body = bytes((len(payload),)) + full[2:6] + payload
+        return b"\xfe" + body + struct.pack("<H", mav.x25crc(body + bytes((24,))).crc)
+
+    base = v1(full[6:36])
+    dec = MavlinkDecoder(cfg())
+    (g,) = dec.feed_datagram(base, 0)
+    assert isinstance(g, GnssSample) and g.alt_m == pytest.approx(500.0)
+    ref = mav.MAVLink(None).decode(bytearray(base))
+    f = scanner().whole(base)
+    assert f is not None
+    got = fields_dict(24, f.payload)
+    assert all(_same(got[k], getattr(ref, k)) for k in LAYOUTS[24].fields)
+    assert scanner().whole(v1(full[6:33])) is None  # 27 bytes: inside the cog field

@@ -56,6 +56,7 @@ from navd.io.mavlink.wire import (
     crc_extra_table,
     max_len_table,
     payload_fields,
+    v1_lengths_table,
 )
 from navd.types import FixType, GnssSample, ImuSample, PolSample
 from navd.units import DEG
@@ -237,7 +238,7 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
             lengths[_POL_MSG_ID] = pol_wire.PAYLOAD_LEN
         check = (SignatureCheck(cfg.signing_key, cfg.accept_unsigned)
                  if cfg.signing_key is not None else None)
-        self._scanner = FrameScanner(table, lengths, check)
+        self._scanner = FrameScanner(table, lengths, check, v1_lengths_table())
         self._ms = _MsUnwrapper()
         self._sources: dict[tuple[int, int], _Source] = {}
         self._last_gnss_t_us: dict[tuple[int, int, int], int] = {}

@@ -107,17 +107,22 @@ class FrameScanner:
     """Splits bytes into CRC-checked frames; keeps the unfinished tail of a byte stream.
 
     ``crc_extra``: message id -> CRC_EXTRA of every message the reader knows.
-    ``max_len``: message id -> its payload length with every extension field; a MAVLink 1
-    frame may not be longer (MAVLink 2 may: a newer sender's extensions are ignored).
+    ``max_len``: message id -> its payload length with every extension field (a MAVLink 2
+    frame may be longer: a newer sender's extensions are ignored).
+    ``v1_lengths``: message id -> bit mask of the payload lengths a MAVLink 1 frame may
+    have (it is never truncated); without it, any length up to ``max_len``.
     ``check_frame``: optional further test of a CRC-valid frame (the signature check);
     it returns None to accept or a rejection reason.  A frame it rejects is skipped whole:
     its CRC shows it was sent as one frame, so no frame can start inside it.
     """
 
     def __init__(self, crc_extra: Mapping[int, int], max_len: Mapping[int, int],
-                 check_frame: Callable[[Frame], str | None] | None = None) -> None:
+                 check_frame: Callable[[Frame], str | None] | None = None,
+                 v1_lengths: Mapping[int, int] | None = None) -> None:
         self.crc_extra = dict(crc_extra)
-        self.v1_max_len = {k: v for k, v in max_len.items() if k < 256}
+        self.v1_lengths = ({k: v for k, v in v1_lengths.items() if k in self.crc_extra}
+                           if v1_lengths is not None else
+                           {k: (2 << v) - 1 for k, v in max_len.items() if k < 256})
         self.check_frame = check_frame
         self._tail = b""
 
@@ -158,7 +163,7 @@ class FrameScanner:
             msgid = data[7] | data[8] << 8 | data[9] << 16
         elif b0 == STX_V1:
             hdr, plen, signed, msgid = HEADER_V1, data[1], 0, data[5]
-            if n != hdr + plen + 2 or plen > self.v1_max_len.get(msgid, -1):
+            if n != hdr + plen + 2 or not self.v1_lengths.get(msgid, 0) >> plen & 1:
                 return None
         else:
             return None
@@ -189,7 +194,7 @@ class FrameScanner:
         p = 0
         search = _START.search
         crc_table = self.crc_extra
-        v1_max = self.v1_max_len
+        v1_lens = self.v1_lengths
         check = self.check_frame
         while p < n:
             b0 = buf[p]
@@ -228,9 +233,9 @@ class FrameScanner:
                 signed = 0
                 size = hdr + plen + 2
                 msgid = buf[p + 5]
-                # MAVLink 1 has no truncation and no extensions beyond what we know: a
-                # longer payload is noise, refused before paying for a checksum.
-                if plen > v1_max.get(msgid, -1):
+                # MAVLink 1 is never truncated: a length that is not a field boundary of
+                # the message is noise, refused before paying for a checksum.
+                if not v1_lens.get(msgid, 0) >> plen & 1:
                     rj.note("bad_frame" if msgid in crc_table else "unknown_msgid")
                     rj.junk_bytes += 1
                     p += 1

@@ -13,13 +13,14 @@ ignores what follows, as pymavlink does.
 
 from __future__ import annotations
 
+import re
 import struct
 from typing import NamedTuple
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 __all__ = ["LAYOUTS", "Layout", "crc_extra_table", "fields_dict", "max_len_table",
-           "payload_fields"]
+           "payload_fields", "v1_lengths_table"]
 
 
 class Layout(NamedTuple):
@@ -81,3 +82,22 @@ def crc_extra_table() -> dict[int, int]:
 def max_len_table() -> dict[int, int]:
     """Message id -> payload bytes with every extension field (what pymavlink sends)."""
     return {msgid: cls.unpacker.size for msgid, cls in mavlink.mavlink_map.items()}
+
+
+def v1_lengths_table() -> dict[int, int]:
+    """Message id (< 256) -> bit mask of the payload lengths a MAVLink 1 frame of it can have.
+
+    MAVLink 1 never truncates: a sender puts the fields it knows, in wire order, whole.  The
+    C library sends the fields without extensions, pymavlink all of them; both end on a field
+    boundary, so bit L is set for every L at which a field (an array counts as one) ends.
+    """
+    out: dict[int, int] = {}
+    for msgid, cls in mavlink.mavlink_map.items():
+        if msgid > 255:
+            continue
+        mask, end = 0, 0
+        for count, code in re.findall(r"(\d*)([A-Za-z])", cls.unpacker.format.lstrip("<")):
+            end += struct.calcsize(f"<{count}{code}")
+            mask |= 1 << end
+        out[msgid] = mask
+    return out
