@@ -248,9 +248,12 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
             self._handlers[msgid] = (LAYOUTS[msgid], getattr(self, f"_on_{name.lower()}"))
 
     def reset(self) -> None:
-        """Forget partial frames and IMU time lines (e.g. after a link reconnect)."""
+        """Forget partial frames, IMU time lines and sequence numbers (e.g. after a link
+        reconnect, across which neither continues)."""
         self._scanner.reset()
         self._imu.reset()
+        for source in self._sources.values():
+            source.last_seq = None
 
     # -- byte input ---------------------------------------------------------------------------
 
