@@ -67,6 +67,20 @@ def cpu_s(pid: int) -> float:
     return user + system
 
 
+def thread_cpu_s(pid: int) -> dict[str, float]:
+    """CPU seconds (user + system) per thread name of a process; threads sharing a name
+    (Zenoh's runtime pools) are summed."""
+    out: dict[str, float] = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            name = (task / "comm").read_text().strip()
+            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:  # the thread ended meanwhile
+            continue
+        out[name] = out.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / CLK_TCK
+    return out
+
+
 def cpu_split_s(pid: int) -> tuple[float, float]:
     """(user, system) CPU seconds of a process (all threads)."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
@@ -254,9 +268,10 @@ def main(argv: list[str] | None = None) -> int:
         time.sleep(3.0)
         idle_pct = 100.0 * (cpu_s(proc.pid) - i0) / (time.monotonic() - w0)
         spy = start_py_spy(proc.pid, a.py_spy, a.duration) if a.py_spy else None
-        (u0, s0), c0 = cpu_split_s(proc.pid), cpu_s(proc.pid)
+        (u0, s0), c0, th0 = cpu_split_s(proc.pid), cpu_s(proc.pid), thread_cpu_s(proc.pid)
         n_imu, wall = send_paced(sock, addr, frames[:n_main], 1.0, sent_at)
-        (u1, s1), c1 = cpu_split_s(proc.pid), cpu_s(proc.pid)
+        (u1, s1), c1, th1 = cpu_split_s(proc.pid), cpu_s(proc.pid), thread_cpu_s(proc.pid)
+        by_thread = {k: round(100.0 * (v - th0.get(k, 0.0)) / wall, 1) for k, v in th1.items()}
         if spy is not None:
             spy.wait(60)
         time.sleep(0.5)
@@ -272,6 +287,7 @@ def main(argv: list[str] | None = None) -> int:
             "cpu_user_pct": round(100.0 * (u1 - u0) / wall, 1),
             "cpu_system_pct": round(100.0 * (s1 - s0) / wall, 1),
             "cpu_idle_pct_one_core": round(idle_pct, 1),
+            "cpu_pct_by_thread": dict(sorted(by_thread.items(), key=lambda kv: -kv[1])),
             "navd_latency_p50_ms": round(lat["p50_us"] / 1e3, 3),
             "navd_latency_p99_ms": round(lat["p99_us"] / 1e3, 3),
             "navd_latency_max_ms": round(lat["max_window_us"] / 1e3, 3),
@@ -328,6 +344,8 @@ def main(argv: list[str] | None = None) -> int:
         ("CPU, % of one core (1 kHz)", f"{m['cpu_pct_one_core']:.1f}", "<= 5"),
         ("  of which user / system", f"{m['cpu_user_pct']:.1f} / {m['cpu_system_pct']:.1f}", ""),
         ("CPU with no input (3 s before streaming), %", f"{m['cpu_idle_pct_one_core']:.1f}", ""),
+        ("  by thread (top 3), %", ", ".join(
+            f"{k} {v:.1f}" for k, v in list(m["cpu_pct_by_thread"].items())[:3]), ""),
         ("navd recv -> ATTITUDE send p50 / p99, ms",
          f"{m['navd_latency_p50_ms']:.3f} / {m['navd_latency_p99_ms']:.3f}", "p99 <= 2"),
         ("end-to-end IMU sendto -> ATTITUDE recv p50 / p99, ms",
