@@ -27,6 +27,7 @@ from navd.config.estimator import EstimatorConfig
 from navd.config.load import ConfigError, build_section, check, load_config
 from navd.config.load import setting as _f
 from navd.io.mavlink import GNSS_MESSAGES, IMU_MESSAGES, parse_mavlink_url
+from navd.io.mavlink.signing import load_signing_key
 from navd.io.ros2.names import validate_name, validate_namespace
 
 __all__ = [
@@ -100,6 +101,10 @@ class MavlinkSection:
     raw_accel: float = _f(0.0, "mps2_per_lsb")  # RAW_IMU accelerometer scale
     uere: float = _f(3.0, "m")  # accuracy = DOP * uere when a fix sends none
     polarization: bool = _f(False)
+    # a bigger UDP datagram is refused unread (counted oversize); >= 280 (one frame)
+    max_datagram: int = _f(16384, "bytes")
+    signing_key_file: str = _f("")  # MAVLink 2 signing key (32 raw bytes or 64 hex); "" = off
+    accept_unsigned: bool = _f(False)  # with a key: also take unsigned (and MAVLink 1) frames
 
     def validate(self) -> None:
         s = "mavlink"
@@ -135,6 +140,13 @@ class MavlinkSection:
         check(self.raw_gyro >= 0.0 and self.raw_accel >= 0.0, s,
               "raw_*_per_lsb", "a scale >= 0 (0 = RAW_IMU not usable)")
         check(self.uere > 0.0, s, "uere_m", "a number of metres > 0")
+        check(self.max_datagram >= 280, s, "max_datagram_bytes",
+              "a byte count >= 280 (the largest MAVLink frame)")
+        if self.signing_key_file:
+            try:
+                load_signing_key(self.signing_key_file)
+            except (OSError, ValueError) as exc:
+                raise ConfigError(f"[{s}] signing_key_file: {exc}") from None
 
 
 @dataclass(frozen=True)

@@ -11,15 +11,19 @@ from navd.config.daemon import DronecanSection, MavlinkSection, ZenohSection
 from navd.core.plausible import Limits
 from navd.io.dronecan import DronecanConfig
 from navd.io.mavlink import MavlinkInputConfig
+from navd.io.mavlink.signing import load_signing_key
 from navd.io.zenoh import ZenohConfig
 from navd.io.zenoh_security import read_password, read_usernames
 
 __all__ = ["dronecan_bus_config", "mavlink_input_config", "zenoh_session_config"]
 
 
-def mavlink_input_config(m: MavlinkSection, limits: Limits | None = None) -> MavlinkInputConfig:
+def mavlink_input_config(m: MavlinkSection, limits: Limits | None = None, *,
+                         warn_interval_s: float = 5.0) -> MavlinkInputConfig:
     """``limits``: the estimator's ``[imu]`` plausibility limits, so a sample the adapter
-    passes is one the estimator accepts (default: the built-in limits)."""
+    passes is one the estimator accepts (default: the built-in limits).
+    ``warn_interval_s``: ``[daemon] warn_interval_s``.  Reads ``signing_key_file``;
+    raises OSError / ValueError when it cannot be read or is not a key."""
     return MavlinkInputConfig(
         limits=limits or Limits(),
         imu_messages=frozenset(m.imu_messages),
@@ -35,11 +39,16 @@ def mavlink_input_config(m: MavlinkSection, limits: Limits | None = None) -> Mav
         uere_m=m.uere,
         use_receive_time=m.use_receive_time,
         polarization=m.polarization,
+        max_datagram_bytes=m.max_datagram,
+        signing_key=load_signing_key(m.signing_key_file) if m.signing_key_file else None,
+        accept_unsigned=m.accept_unsigned,
+        warn_interval_s=warn_interval_s,
     )
 
 
-def dronecan_bus_config(d: DronecanSection, limits: Limits | None = None) -> DronecanConfig:
-    """``limits``: as for :func:`mavlink_input_config`."""
+def dronecan_bus_config(d: DronecanSection, limits: Limits | None = None, *,
+                        warn_interval_s: float = 5.0) -> DronecanConfig:
+    """``limits``, ``warn_interval_s``: as for :func:`mavlink_input_config`."""
     return DronecanConfig(
         limits=limits or Limits(),
         interface=d.interface,
@@ -50,6 +59,7 @@ def dronecan_bus_config(d: DronecanSection, limits: Limits | None = None) -> Dro
         nominal_imu_rate_hz=d.nominal_imu_rate or None,
         max_imu_gap_s=d.max_imu_gap,
         use_receive_time=d.use_receive_time,
+        warn_interval_s=warn_interval_s,
     )
 
 

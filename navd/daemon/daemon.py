@@ -699,8 +699,10 @@ class Daemon:
         head, lat = self._headline()
         c = self.est.counters
         refused = {k: v for k, v in c.items() if _is_refusal(k)}
+        # tallies (frames, datagrams, per-source counts) are not rejections
         inputs = {name: {k: v for k, v in cnt.items() if v and not k.endswith("_ok")
-                         and k != "frames_ok"} for name, cnt in self.sources.counters().items()}
+                         and k not in ("frames_ok", "datagrams") and not k.startswith("src_")}
+                  for name, cnt in self.sources.counters().items()}
         t = self.est.t_us * 1e-6 if self.est.t_us >= 0 else math.nan
         return (f"t={t:.1f} s {head}; imu={c.get('imu', 0)} gnss={c.get('gnss', 0)} "
                 f"estimator refused={refused} input rejects={inputs} "

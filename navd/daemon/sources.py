@@ -180,7 +180,8 @@ class MavlinkInput(_DecodingInput[MavlinkDecoder, MavlinkLink]):
         m = self.cfg.mavlink
         clock, on_sample = _queueing(queue)
         self.decoder = MavlinkDecoder(mavlink_input_config(
-            m, Limits.from_config(self.cfg.estimator.imu)))
+            m, Limits.from_config(self.cfg.estimator.imu),
+            warn_interval_s=self.cfg.daemon.warn_interval))
         self.link = await MavlinkLink.open(m.listen, self.decoder, on_sample, clock_us=clock)
         rx = self.cfg.daemon.rx_buffer
         if rx:
@@ -211,7 +212,8 @@ class DronecanInput(_DecodingInput[DronecanDecoder, DronecanLink]):
     async def open(self, queue: SampleQueue) -> str:
         d = self.cfg.dronecan
         clock, on_sample = _queueing(queue)
-        bus_cfg = dronecan_bus_config(d, Limits.from_config(self.cfg.estimator.imu))
+        bus_cfg = dronecan_bus_config(d, Limits.from_config(self.cfg.estimator.imu),
+                                      warn_interval_s=self.cfg.daemon.warn_interval)
         self.decoder = DronecanDecoder(bus_cfg)
         self.link = await DronecanLink.open(bus_cfg, self.decoder, on_sample, clock_us=clock)
         return f"dronecan {d.interface}:{d.channel}"

@@ -39,6 +39,9 @@ class TimingSettings(Protocol):
     @property
     def use_receive_time(self) -> bool: ...
 
+    @property
+    def warn_interval_s(self) -> float: ...
+
 
 ConfigT = TypeVar("ConfigT", bound=TimingSettings)
 
@@ -58,7 +61,9 @@ class DecoderBase(Generic[ConfigT]):
         log: RateLimitedLog | None,
     ) -> None:
         self.config = config
-        self._reject = Rejector.create(logger_name, prefix, counters, log)
+        # [daemon] warn_interval_s reaches the decoders through their config.
+        self._reject = Rejector.create(logger_name, prefix, counters, log,
+                                       log_interval_s=config.warn_interval_s)
         self.counters = self._reject.counters
         nominal = (
             round(1e6 / config.nominal_imu_rate_hz)

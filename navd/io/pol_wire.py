@@ -6,10 +6,10 @@ pymavlink's ``all.xml`` allocates; CRC_EXTRA 76).  docs/polarization.md document
 fields.  This module decodes the frames by hand (no generated code to ship): the layout and
 CRC_EXTRA are tested against pymavlink's own generator (``mavgen``) run on the XML.
 
-Integration with the MAVLink adapter (which parses with the ardupilotmega dialect): the
-parser returns our frame as ``MAVLINK_MSG_ID_UNKNOWN`` with the whole frame in ``m.data``,
-CRC unchecked; call :func:`decode` on ``bytes(m.data)`` before treating it as noise.
-:func:`decode` checks the start marker, message id, length and CRC itself.
+Integration with the MAVLink adapter: with ``[mavlink] polarization`` its frame scanner
+knows MSG_ID and CRC_EXTRA, checks the frame (and its signature, if signing is on) and
+passes the payload to :func:`decode_payload`.  :func:`decode` checks a whole frame itself
+(start marker, message id, length, CRC) for readers without such a scanner.
 
 Time: ``time_usec`` is the sensor clock (same as the IMU) and becomes ``PolSample.t_us``;
 ``time_gps_usec`` (GPS time, no leap seconds) becomes ``utc_unix_s`` through the

@@ -119,6 +119,7 @@ class DronecanConfig:
     default_vel_acc_mps: float = 0.5
     kernel_filters: bool = True
     priority: int = 16
+    warn_interval_s: float = 5.0  # at most one log line per rejection reason per interval
     limits: Limits = field(default_factory=Limits)
 
     def __post_init__(self) -> None:

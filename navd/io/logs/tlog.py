@@ -144,8 +144,11 @@ def read_tlog(path: str | Path, options: LogOptions | None = None) -> LogData:
     with contextlib.suppress(Exception):
         mlog.close()
     b = SampleBuilder(opts)
-    benign = {"frames_ok", "imu_ok", "gnss_ok", "ignored", "imu_first_sample", "seq_lost"}
-    rejected = {k: v for k, v in counters.snapshot().items() if v and k not in benign}
+    benign = {"frames_ok", "imu_ok", "gnss_ok", "ignored", "imu_first_sample", "seq_lost",
+              "seq_jump", "datagrams"}
+    # src_<sysid>_<compid>_* are per-source tallies, not rejections
+    rejected = {k: v for k, v in counters.snapshot().items()
+                if v and k not in benign and not k.startswith("src_")}
     if rejected:
         notes.append("MAVLink decoder rejected: " + ", ".join(
             f"{k}={v}" for k, v in sorted(rejected.items())))

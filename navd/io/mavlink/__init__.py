@@ -2,9 +2,12 @@
 
 One module per job, so a reader (or a log replay) takes only what it needs:
 
+frame    FrameScanner: MAVLink 1/2 frames out of bytes in linear time, CRC checked
+wire     payload layouts of the input messages (unpacked without pymavlink objects)
+signing  MAVLink 2 signature check and key file loading
 decode   MavlinkInputConfig, the accepted message tables, MavlinkDecoder (bytes -> samples)
 encode   MavlinkEncoder (NavSolution -> ATTITUDE, ATTITUDE_QUATERNION, HEARTBEAT, ...)
-link     parse_mavlink_url, UDP/TCP/serial transports with reconnection, MavlinkLink,
+link     parse_mavlink_url, UDP/TCP/serial (pyserial) transports with reconnection, MavlinkLink,
          MavlinkSender (encoder output onto a link)
 
 The names below are the adapter's public surface; ``from navd.io.mavlink import X`` keeps

@@ -1,9 +1,11 @@
 """MAVLink 2 bytes -> navd samples: the input settings, the message tables and the decoder.
 
-Decoding uses the ardupilotmega dialect (a superset of common) so an ArduPilot stream parses
-without "unknown message" noise; everything emitted is from common.xml.  This module owns
-everything between wire bytes and :data:`navd.io.common.Sample`; it opens nothing (links live
-in :mod:`navd.io.mavlink.link`), so log replay (:mod:`navd.io.logs.tlog`) and the daemon share
+Frames are checked against the ardupilotmega dialect's CRC_EXTRA table (a superset of
+common, so an ArduPilot stream has no "unknown message" noise) by
+:mod:`navd.io.mavlink.frame`; the input messages are unpacked straight from their payload
+(:mod:`navd.io.mavlink.wire`), no pymavlink message objects.  This module owns everything
+between wire bytes and :data:`navd.io.common.Sample`; it opens nothing (links live in
+:mod:`navd.io.mavlink.link`), so log replay (:mod:`navd.io.logs.tlog`) and the daemon share
 it unchanged.
 
 Inputs (all converted to SI, NED / FRD, integer microseconds)
@@ -29,17 +31,16 @@ Inputs (all converted to SI, NED / FRD, integer microseconds)
     Rate-type IMU messages become increments in :class:`navd.io.common.RateIntegrator`.
 """
 
-from __future__ import annotations
-
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from navd.core.plausible import gnss_reason
 from navd.diag import Counters, RateLimitedLog
+from navd.io import pol_wire
 from navd.io.adapter import DecoderBase
 from navd.io.common import (
     Limits,
@@ -47,11 +48,22 @@ from navd.io.common import (
     all_finite,
     imu_reject_reason,
 )
+from navd.io.mavlink.frame import MAX_FRAME_BYTES, Frame, FrameScanner, Rejects
+from navd.io.mavlink.signing import KEY_LEN, SignatureCheck
+from navd.io.mavlink.wire import (
+    LAYOUTS,
+    Layout,
+    crc_extra_table,
+    max_len_table,
+    payload_fields,
+    v1_lengths_table,
+)
 from navd.types import FixType, GnssSample, ImuSample, PolSample
 from navd.units import DEG
 from navd.units import G0 as G0_MPS2
 
-__all__ = ["GNSS_MESSAGES", "IMU_MESSAGES", "MavlinkDecoder", "MavlinkInputConfig"]
+__all__ = ["DEFAULT_MAX_DATAGRAM_BYTES", "GNSS_MESSAGES", "IMU_MESSAGES", "MAX_TRACKED_SOURCES",
+           "MavlinkDecoder", "MavlinkInputConfig"]
 
 # The name the single-file adapter logged under; log configuration may select it.
 _LOGGER = "navd.io.mavlink"
@@ -68,6 +80,30 @@ _GPS_FIX = {
 }
 IMU_MESSAGES = frozenset({"HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "RAW_IMU"})
 GNSS_MESSAGES = frozenset({"GPS_RAW_INT", "GPS_INPUT", "HIL_GPS"})
+
+# Largest datagram parsed.  ArduPilot's SITL and Linux UDP ports pack whole frames into one
+# datagram (SITL up to 10,000 bytes per send); PX4 and mavlink-router send a frame per
+# datagram.  16 kB holds 58 frames of the largest size; a bigger datagram is no MAVLink
+# sender's and is refused without looking at it.
+DEFAULT_MAX_DATAGRAM_BYTES = 16384
+# Sources (sysid, compid) with their own counters; beyond this, a flood of spoofed ids
+# would grow the status without bound.
+MAX_TRACKED_SOURCES = 8
+
+_POL_MSG_ID = pol_wire.MSG_ID
+_IGN = (
+    mavlink.GPS_INPUT_IGNORE_FLAG_ALT,
+    mavlink.GPS_INPUT_IGNORE_FLAG_VEL_HORIZ,
+    mavlink.GPS_INPUT_IGNORE_FLAG_VEL_VERT,
+    mavlink.GPS_INPUT_IGNORE_FLAG_HORIZONTAL_ACCURACY,
+    mavlink.GPS_INPUT_IGNORE_FLAG_VERTICAL_ACCURACY,
+    mavlink.GPS_INPUT_IGNORE_FLAG_SPEED_ACCURACY,
+    mavlink.GPS_INPUT_IGNORE_FLAG_HDOP,
+    mavlink.GPS_INPUT_IGNORE_FLAG_VDOP,
+)
+
+Fields = tuple[Any, ...]
+Handler = Callable[[tuple[int, int], Fields, int], Sample | None]
 
 
 @dataclass(frozen=True)
@@ -88,6 +124,11 @@ class MavlinkInputConfig:
         (for senders whose time fields are zero or unrelated between IMU and GNSS).
     polarization: also accept navd's NAVD_SKY_POLARIZATION (private dialect, id 44000,
         :mod:`navd.io.pol_wire`) as PolSample.
+    max_datagram_bytes: a larger UDP datagram is refused unread (counted ``oversize``).
+    signing_key: 32-byte MAVLink 2 signing key; None checks no signatures.  With a key,
+        frames with a bad or replayed signature are refused (:mod:`.signing`), and
+        unsigned frames too unless ``accept_unsigned``.
+    warn_interval_s: at most one log line per rejection reason per interval.
     """
 
     imu_messages: frozenset[str] = frozenset({"HIGHRES_IMU"})
@@ -107,6 +148,10 @@ class MavlinkInputConfig:
     default_vel_acc_mps: float = 0.5
     use_receive_time: bool = False
     polarization: bool = False
+    max_datagram_bytes: int = DEFAULT_MAX_DATAGRAM_BYTES
+    signing_key: bytes | None = field(default=None, repr=False)
+    accept_unsigned: bool = False
+    warn_interval_s: float = 5.0
     limits: Limits = field(default_factory=Limits)
 
     def __post_init__(self) -> None:
@@ -117,6 +162,12 @@ class MavlinkInputConfig:
             raise ValueError("nominal_imu_rate_hz must be > 0")
         if not self.max_imu_gap_s > 0.0:
             raise ValueError("max_imu_gap_s must be > 0")
+        if self.max_datagram_bytes < MAX_FRAME_BYTES:
+            raise ValueError(f"max_datagram_bytes must be >= {MAX_FRAME_BYTES} (one frame)")
+        if self.signing_key is not None and len(self.signing_key) != KEY_LEN:
+            raise ValueError(f"signing_key must have {KEY_LEN} bytes")
+        if not self.warn_interval_s >= 0.0:
+            raise ValueError("warn_interval_s must be >= 0")
 
 
 def _dop(dop_x100: int) -> float | None:
@@ -142,12 +193,34 @@ class _MsUnwrapper:
         return (ms + offset) * 1000
 
 
+class _Source:
+    """Counters of one accepted source; ``prefix`` is ``src_<sysid>_<compid>_``."""
+
+    __slots__ = ("last_seq", "prefix")
+
+    def __init__(self, src: tuple[int, int]) -> None:
+        self.prefix = f"src_{src[0]}_{src[1]}_"
+        self.last_seq: int | None = None
+
+
 class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
     """Non-blocking MAVLink parser producing navd samples; never raises on wire input.
 
     ``feed`` treats input as a byte stream (serial, TCP): a frame may span calls.
     ``feed_datagram`` is for UDP, where a frame never spans datagrams, so a partial frame
     left at the end is dropped (counted) instead of corrupting the next datagram.
+
+    Framing is :class:`navd.io.mavlink.frame.FrameScanner` (linear time, CRC checked);
+    the messages navd uses are unpacked straight from the payload
+    (:mod:`navd.io.mavlink.wire`), no pymavlink message objects.
+
+    Counters (besides the rejection reasons): ``datagrams``, ``frames_ok`` (CRC-valid
+    frames), ``junk_bytes`` (bytes in no valid frame), ``ignored`` (valid frames of
+    messages not used), ``datagrams_damaged`` (datagrams with any byte in no valid frame),
+    and per accepted source ``src_<sysid>_<compid>_frames`` / ``_seq_lost`` (a source is
+    accepted once it passed ``allow`` and delivered a sample; sequence loss is counted only
+    for accepted sources, and one frame adds at most 127; a larger jump counts
+    ``seq_jump``).
     """
 
     def __init__(
@@ -159,173 +232,171 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         super().__init__(config if config is not None else MavlinkInputConfig(), "mavlink",
                          _LOGGER, counters, log)
         cfg = self.config
-        self._mav = self._new_parser()
+        table, lengths = crc_extra_table(), max_len_table()
+        if cfg.polarization:
+            table[_POL_MSG_ID] = pol_wire.CRC_EXTRA
+            lengths[_POL_MSG_ID] = pol_wire.PAYLOAD_LEN
+        check = (SignatureCheck(cfg.signing_key, cfg.accept_unsigned)
+                 if cfg.signing_key is not None else None)
+        self._scanner = FrameScanner(table, lengths, check, v1_lengths_table())
         self._ms = _MsUnwrapper()
-        self._last_seq: dict[tuple[int, int], int] = {}
+        self._sources: dict[tuple[int, int], _Source] = {}
         self._last_gnss_t_us: dict[tuple[int, int, int], int] = {}
-        self._handlers: dict[int, Callable[[Any, int], Sample | None]] = {}
+        self._handlers: dict[int, tuple[Layout, Handler]] = {}
         for name in cfg.imu_messages | cfg.gnss_messages:
-            self._handlers[getattr(mavlink, f"MAVLINK_MSG_ID_{name}")] = getattr(
-                self, f"_on_{name.lower()}"
-            )
-
-    @staticmethod
-    def _new_parser() -> Any:
-        mav = mavlink.MAVLink(None)
-        mav.robust_parsing = True
-        return mav
+            msgid: int = getattr(mavlink, f"MAVLINK_MSG_ID_{name}")
+            self._handlers[msgid] = (LAYOUTS[msgid], getattr(self, f"_on_{name.lower()}"))
 
     def reset(self) -> None:
-        """Forget partial frames and IMU time lines (e.g. after a link reconnect)."""
-        self._mav = self._new_parser()
+        """Forget partial frames, IMU time lines and sequence numbers (e.g. after a link
+        reconnect, across which neither continues)."""
+        self._scanner.reset()
         self._imu.reset()
+        for source in self._sources.values():
+            source.last_seq = None
 
     # -- byte input ---------------------------------------------------------------------------
 
     def feed(self, data: bytes, recv_t_us: int) -> list[Sample]:
-        out: list[Sample] = []
-        try:
-            m = self._mav.parse_char(data)
-            while m is not None:
-                s = self._on_message(m, recv_t_us)
-                if s is not None:
-                    out.append(s)
-                m = self._mav.parse_char(b"")
-        except Exception as exc:  # wire input must never kill the daemon
-            self._reject("parser_error", "%s: %s", type(exc).__name__, exc)
-            self._mav = self._new_parser()
+        rj = Rejects()
+        out = self._decode(self._scanner.stream(data, rj), rj, recv_t_us)
+        if rj.counts:
+            self._account(rj, "stream piece", len(data))
         return out
 
     def feed_datagram(self, data: bytes, recv_t_us: int) -> list[Sample]:
-        # Fast path for the common case at kHz IMU rates: the datagram is exactly one
-        # unsigned MAVLink 2 frame of a message we use.  pymavlink's frame decoder checks it
-        # (CRC included) without the byte-stream machinery, a quarter of the cost per frame.
-        # Anything else, or any error, takes the robust stream path, which counts it.
-        if (len(data) > 11 and data[0] == 0xFD and len(data) == data[1] + 12
-                and not data[2] & 0x01
-                and (data[7] | data[8] << 8 | data[9] << 16) in self._handlers):
+        self.counters.inc("datagrams")
+        if len(data) > self.config.max_datagram_bytes:
+            # Refused unread: its cost must not depend on what an attacker put in it.
+            self._reject("oversize", "datagram of %d bytes (limit %d)", len(data),
+                         self.config.max_datagram_bytes)
+            return []
+        # Most datagrams are exactly one frame: checked and decoded without the scan's
+        # bookkeeping (anything else, including a frame refused here, goes the long way).
+        f = self._scanner.whole(data)
+        if f is not None:
             try:
-                m = self._mav.decode(bytearray(data))
-            except Exception:  # the robust path below counts and reports it
-                pass
-            else:
-                s = self._on_message(m, recv_t_us)
-                return [] if s is None else [s]
-        out = self.feed(data, recv_t_us)
-        counted = False
-        while self._mav.buf_len() > 0:
-            # The parser is waiting for the rest of a frame that will never come.  Good
-            # frames may sit behind its (truncated) start: rescan from the next byte.
-            rest = bytes(self._mav.buf[self._mav.buf_index + 1 :])
-            if not counted:
-                self._reject("truncated", "partial frame at datagram end (%d bytes)", len(rest) + 1)
-                counted = True
-            self._mav = self._new_parser()
-            out += self.feed(rest, recv_t_us)
+                s = self._on_frame(f, recv_t_us)
+            except Exception as exc:  # wire input must never kill the daemon
+                self._reject("parser_error", "%s: %s", type(exc).__name__, exc)
+                return []
+            return [] if s is None else [s]
+        rj = Rejects()
+        out = self._decode(self._scanner.datagram(data, rj), rj, recv_t_us)
+        if rj.counts:
+            self.counters.inc("datagrams_damaged")
+            self._account(rj, "datagram", len(data))
         return out
 
-    def _on_message(self, m: Any, recv_t_us: int) -> Sample | None:
-        msgid: int = m.get_msgId()
-        if msgid == mavlink.MAVLINK_MSG_ID_BAD_DATA:
-            self._on_bad_data(m)
-            return None
-        if msgid == mavlink.MAVLINK_MSG_ID_UNKNOWN:
-            if self.config.polarization:
-                pol = self._polarization(bytes(m.data), recv_t_us)
-                if pol is not False:
-                    return pol
-            # Without the message's CRC_EXTRA pymavlink cannot check the CRC, so this may be
-            # noise whose fake header swallowed the start of a real frame.  Rescan it.
-            self.counters.inc("unknown_msgid")
-            self._rescan(bytes(m.data))
-            return None
-        src = (m.get_srcSystem(), m.get_srcComponent())
+    def _decode(self, frames: Iterable[Frame], rj: Rejects, recv_t_us: int) -> list[Sample]:
+        out: list[Sample] = []
+        try:
+            for f in frames:
+                s = self._on_frame(f, recv_t_us)
+                if s is not None:
+                    out.append(s)
+        except Exception as exc:  # wire input must never kill the daemon
+            self._reject("parser_error", "%s: %s", type(exc).__name__, exc)
+            self._scanner.reset()
+        return out
+
+    def _account(self, rj: Rejects, what: str, size: int) -> None:
+        """Count one scan's rejections (framing reasons once per run of junk, see Rejects)."""
+        self.counters.inc("junk_bytes", rj.junk_bytes)
+        for reason, n in rj.counts.items():
+            self.counters.inc(reason, n - 1)
+            self._reject(reason, "%d of %d bytes of a %s in no valid frame", rj.junk_bytes,
+                         size, what)
+
+    def _on_frame(self, f: Frame, recv_t_us: int) -> Sample | None:
         self.counters.inc("frames_ok")
-        self._track_seq(src, m.get_seq())
-        handler = self._handlers.get(msgid)
-        if handler is None:
+        src = (f.sysid, f.compid)
+        source = self._sources.get(src)
+        if source is not None:
+            self._track(source, f.seq)
+        if f.msgid == _POL_MSG_ID and self.config.polarization:
+            return self._polarization(f, src, recv_t_us)
+        h = self._handlers.get(f.msgid)
+        if h is None:
             self.counters.inc("ignored")
             return None
         if self.config.allow is not None and src not in self.config.allow:
             self._reject("not_allowed", "source sysid=%d compid=%d", *src)
             return None
+        layout, handler = h
         try:
-            sample = handler(m, recv_t_us)
+            sample = handler(src, payload_fields(layout, f.payload), recv_t_us)
         except (TypeError, ValueError, OverflowError) as exc:
-            self._reject("decode_error", "%s: %s", m.get_type(), exc)
+            self._reject("decode_error", "%s: %s", layout.name, exc)
             return None
         if sample is None:
             return None
-        if isinstance(sample, ImuSample):
+        if isinstance(sample, GnssSample):
+            # ArduPilot streams GPS_RAW_INT faster than many receivers update and repeats
+            # the last fix, time stamp included; a repeat is no new information.
+            key = (src[0], src[1], f.msgid)
+            if self._last_gnss_t_us.get(key) == sample.t_us:
+                self.counters.inc("gnss_repeat")
+                return None
+            self._last_gnss_t_us[key] = sample.t_us
+            self.counters.inc("gnss_ok")
+        else:
             self.counters.inc("imu_ok")
-            return sample
-        # ArduPilot streams GPS_RAW_INT faster than many receivers update and repeats the
-        # last fix, time stamp included; a repeat is no new information.
-        key = (src[0], src[1], msgid)
-        if self._last_gnss_t_us.get(key) == sample.t_us:
-            self.counters.inc("gnss_repeat")
-            return None
-        self._last_gnss_t_us[key] = sample.t_us
-        self.counters.inc("gnss_ok")
+        if source is None:
+            self._accepted(src, f.seq)
         return sample
 
-    def _polarization(self, frame: bytes, recv_t_us: int) -> PolSample | Literal[False] | None:
-        """NAVD_SKY_POLARIZATION -> PolSample; None if it is ours but refused (counted);
-        False if the frame is not ours, or ours with a bad CRC (then it may be noise)."""
-        from navd.io import pol_wire
-
-        why: dict[str, int] = {}
-        s = pol_wire.decode(frame, recv_t_us, use_receive_time=self.config.use_receive_time,
-                            counters=why)
-        if s is None and not why:
-            return False
-        src = (frame[5], frame[6]) if len(frame) > 6 else (0, 0)
-        if s is not None:
-            self.counters.inc("frames_ok")
-            if self.config.allow is not None and src not in self.config.allow:
-                self._reject("not_allowed", "source sysid=%d compid=%d", *src)
-                return None
-            # the same time checks as every other sample (pol_wire already chose the clock)
-            if self._stamp(s.t_us, recv_t_us, "pol") is None:
-                return None
-            self.counters.inc("pol_ok")
-            return s
-        for reason in why:
-            self._reject(reason, "NAVD_SKY_POLARIZATION from sysid=%d compid=%d", *src)
-        return False if "pol_wire_bad_crc" in why or "pol_wire_bad_frame" in why else None
-
-    def _on_bad_data(self, m: Any) -> None:
-        reason: str = m.reason
-        if reason == "Bad prefix":
-            self._reject("bad_prefix", "%d junk bytes", len(m.data))
+    def _accepted(self, src: tuple[int, int], seq: int) -> None:
+        """``src`` delivered its first sample: from now on its frames and sequence are
+        counted per source (up to MAX_TRACKED_SOURCES; ``src_untracked`` counts the rest)."""
+        if src in self._sources:
             return
-        if "CRC" in reason:
-            self._reject("bad_crc", "%s", reason)
+        if len(self._sources) >= MAX_TRACKED_SOURCES:
+            self.counters.inc("src_untracked")
+            return
+        source = self._sources[src] = _Source(src)
+        source.last_seq = seq
+        self.counters.inc(source.prefix + "frames")
+
+    def _track(self, source: _Source, seq: int) -> None:
+        self.counters.inc(source.prefix + "frames")
+        last = source.last_seq
+        source.last_seq = seq
+        if last is None:
+            return
+        lost = (seq - last - 1) & 0xFF
+        if lost == 0:
+            return
+        # A "loss" of 128 or more is a restart, a duplicate, reordering or a second sender
+        # using the same ids, not that many dropped frames.
+        if lost < 128:
+            self.counters.inc("seq_lost", lost)
+            self.counters.inc(source.prefix + "seq_lost", lost)
         else:
-            self._reject("bad_frame", "%s", reason)
-        self._rescan(bytes(m.data))
+            self.counters.inc("seq_jump")
 
-    def _rescan(self, frame: bytes) -> None:
-        """Put a rejected frame, minus its start marker, back in front of the parser buffer.
-
-        pymavlink skips the whole length a broken header announced; on a serial link that
-        swallows the good frames behind a lost byte, and noise that looks like a header
-        eats the start of the next real frame.
-        """
-        if len(frame) > 1:
-            mav = self._mav
-            mav.buf = bytearray(frame[1:]) + mav.buf[mav.buf_index :]
-            mav.buf_index = 0
-            mav.expected_length = mavlink.HEADER_LEN_V1 + 2
-
-    def _track_seq(self, src: tuple[int, int], seq: int) -> None:
-        last = self._last_seq.get(src)
-        self._last_seq[src] = seq
-        if last is not None:
-            lost = (seq - last - 1) & 0xFF
-            # A huge "loss" is a restart or a duplicate, not 200+ dropped frames.
-            if 0 < lost < 128:
-                self.counters.inc("seq_lost", lost)
+    def _polarization(self, f: Frame, src: tuple[int, int], recv_t_us: int) -> PolSample | None:
+        """NAVD_SKY_POLARIZATION (CRC already checked) -> PolSample; None if refused
+        (counted)."""
+        if f.version != 2:
+            self._reject("pol_wire_bad_frame", "NAVD_SKY_POLARIZATION in a MAVLink 1 frame")
+            return None
+        if self.config.allow is not None and src not in self.config.allow:
+            self._reject("not_allowed", "source sysid=%d compid=%d", *src)
+            return None
+        why: dict[str, int] = {}
+        s = pol_wire.decode_payload(f.payload, recv_t_us,
+                                    use_receive_time=self.config.use_receive_time, counters=why)
+        if s is None:
+            for reason in why:
+                self._reject(reason, "NAVD_SKY_POLARIZATION from sysid=%d compid=%d", *src)
+            return None
+        # the same time checks as every other sample (pol_wire already chose the clock)
+        if self._stamp(s.t_us, recv_t_us, "pol") is None:
+            return None
+        self.counters.inc("pol_ok")
+        self._accepted(src, f.seq)
+        return s
 
     # -- helpers ------------------------------------------------------------------------------
 
@@ -408,158 +479,127 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
             fix_type=fix,
         )
 
-    # -- IMU messages -------------------------------------------------------------------------
+    # -- IMU messages (fields in wire order, navd.io.mavlink.wire.LAYOUTS) ---------------------
 
-    def _on_highres_imu(self, m: Any, recv_t_us: int) -> ImuSample | None:
-        if not self._imu_id_ok(m.id):
+    def _on_highres_imu(self, src: tuple[int, int], f: Fields, recv_t_us: int) -> ImuSample | None:
+        t, ax, ay, az, gx, gy, gz = f[:7]
+        updated, imu_id = f[14], f[15]
+        if not self._imu_id_ok(imu_id):
             return None
-        if (
-            self.config.require_fields_updated
-            and (m.fields_updated & _HIGHRES_ACC_GYRO) != _HIGHRES_ACC_GYRO
-        ):
+        if (self.config.require_fields_updated
+                and (updated & _HIGHRES_ACC_GYRO) != _HIGHRES_ACC_GYRO):
             self.counters.inc("imu_fields_not_updated")
             return None
-        t_us = self._stamp(m.time_usec, recv_t_us, "imu")
-        key = (m.get_srcSystem(), m.get_srcComponent(), mavlink.MAVLINK_MSG_ID_HIGHRES_IMU, m.id)
-        return self._imu_sample(
-            key, t_us, (m.xgyro, m.ygyro, m.zgyro), (m.xacc, m.yacc, m.zacc)
-        )
+        t_us = self._stamp(t, recv_t_us, "imu")
+        key = (src[0], src[1], mavlink.MAVLINK_MSG_ID_HIGHRES_IMU, imu_id)
+        return self._imu_sample(key, t_us, (gx, gy, gz), (ax, ay, az))
 
-    def _scaled(self, m: Any, recv_t_us: int, msgid: int, instance: int) -> ImuSample | None:
+    def _scaled(self, src: tuple[int, int], f: Fields, recv_t_us: int, msgid: int,
+                instance: int) -> ImuSample | None:
         if not self._imu_id_ok(instance):
             return None
-        key = (m.get_srcSystem(), m.get_srcComponent(), msgid, instance)
-        t_us = self._stamp(self._ms.us(key[:3], m.time_boot_ms), recv_t_us, "imu")
-        return self._scaled_sample(m, key, t_us, 1e-3, G0_MPS2 * 1e-3)  # mrad/s, mG
+        key = (src[0], src[1], msgid, instance)
+        t_us = self._stamp(self._ms.us(key[:3], f[0]), recv_t_us, "imu")
+        return self._scaled_sample(f, key, t_us, 1e-3, G0_MPS2 * 1e-3)  # mrad/s, mG
 
-    def _on_scaled_imu(self, m: Any, recv_t_us: int) -> ImuSample | None:
-        return self._scaled(m, recv_t_us, mavlink.MAVLINK_MSG_ID_SCALED_IMU, 0)
+    def _on_scaled_imu(self, src: tuple[int, int], f: Fields, recv_t_us: int) -> ImuSample | None:
+        return self._scaled(src, f, recv_t_us, mavlink.MAVLINK_MSG_ID_SCALED_IMU, 0)
 
-    def _on_scaled_imu2(self, m: Any, recv_t_us: int) -> ImuSample | None:
-        return self._scaled(m, recv_t_us, mavlink.MAVLINK_MSG_ID_SCALED_IMU2, 1)
+    def _on_scaled_imu2(self, src: tuple[int, int], f: Fields, recv_t_us: int) -> ImuSample | None:
+        return self._scaled(src, f, recv_t_us, mavlink.MAVLINK_MSG_ID_SCALED_IMU2, 1)
 
-    def _on_scaled_imu3(self, m: Any, recv_t_us: int) -> ImuSample | None:
-        return self._scaled(m, recv_t_us, mavlink.MAVLINK_MSG_ID_SCALED_IMU3, 2)
+    def _on_scaled_imu3(self, src: tuple[int, int], f: Fields, recv_t_us: int) -> ImuSample | None:
+        return self._scaled(src, f, recv_t_us, mavlink.MAVLINK_MSG_ID_SCALED_IMU3, 2)
 
-    def _on_raw_imu(self, m: Any, recv_t_us: int) -> ImuSample | None:
+    def _on_raw_imu(self, src: tuple[int, int], f: Fields, recv_t_us: int) -> ImuSample | None:
         g = self.config.raw_gyro_rps_per_lsb
         a = self.config.raw_accel_mps2_per_lsb
         if g is None or a is None:
             self._reject("raw_imu_unscaled", "RAW_IMU needs raw_*_per_lsb scales in config")
             return None
-        if not self._imu_id_ok(m.id):
+        imu_id = f[10]
+        if not self._imu_id_ok(imu_id):
             return None
-        t_us = self._stamp(m.time_usec, recv_t_us, "imu")
-        key = (m.get_srcSystem(), m.get_srcComponent(), mavlink.MAVLINK_MSG_ID_RAW_IMU, m.id)
-        return self._scaled_sample(m, key, t_us, g, a)
+        t_us = self._stamp(f[0], recv_t_us, "imu")
+        key = (src[0], src[1], mavlink.MAVLINK_MSG_ID_RAW_IMU, imu_id)
+        return self._scaled_sample(f, key, t_us, g, a)
 
     def _scaled_sample(
-        self, m: Any, key: tuple[int, int, int, int], t_us: int | None, g: float, a: float
+        self, f: Fields, key: tuple[int, int, int, int], t_us: int | None, g: float, a: float
     ) -> ImuSample | None:
-        """Integer x/y/z gyro and accel fields times their scales (rad/s and m/s^2 per
-        unit): what SCALED_IMU* and RAW_IMU share."""
-        return self._imu_sample(
-            key,
-            t_us,
-            (m.xgyro * g, m.ygyro * g, m.zgyro * g),
-            (m.xacc * a, m.yacc * a, m.zacc * a),
-        )
+        """Integer x/y/z accel and gyro fields (wire positions 1-6) times their scales
+        (m/s^2 and rad/s per unit): what SCALED_IMU* and RAW_IMU share."""
+        _, ax, ay, az, gx, gy, gz = f[:7]
+        return self._imu_sample(key, t_us, (gx * g, gy * g, gz * g), (ax * a, ay * a, az * a))
 
     # -- GNSS messages ------------------------------------------------------------------------
 
-    def _on_gps_raw_int(self, m: Any, recv_t_us: int) -> GnssSample | None:
+    def _on_gps_raw_int(self, src: tuple[int, int], f: Fields, recv_t_us: int) -> GnssSample | None:
+        (t, lat, lon, alt, eph_x100, epv_x100, vel, cog, fix_type, _sats, alt_ellipsoid,
+         h_acc, v_acc, vel_acc) = f[:14]
         cfg = self.config
-        t_us = self._stamp(m.time_usec, recv_t_us, "gnss")
-        if m.alt_ellipsoid != 0:
-            alt_m = m.alt_ellipsoid * 1e-3
+        t_us = self._stamp(t, recv_t_us, "gnss")
+        if alt_ellipsoid != 0:
+            alt_m = alt_ellipsoid * 1e-3
         else:
             # 0 is what an absent MAVLink 2 extension decodes to.
-            alt_m = m.alt * 1e-3 + cfg.geoid_sep_m
+            alt_m = alt * 1e-3 + cfg.geoid_sep_m
             self.counters.inc("gnss_alt_from_msl")
-        if m.vel != UINT16_MAX and m.cog != UINT16_MAX:
-            speed = m.vel * 1e-2
-            cog = m.cog * 1e-2 * DEG
-            vel = (speed * math.cos(cog), speed * math.sin(cog), math.nan)
+        if vel != UINT16_MAX and cog != UINT16_MAX:
+            speed = vel * 1e-2
+            course = cog * 1e-2 * DEG
+            v = (speed * math.cos(course), speed * math.sin(course), math.nan)
         else:
-            vel = (math.nan, math.nan, math.nan)
-        eph, epv = _dop(m.eph), _dop(m.epv)
+            v = (math.nan, math.nan, math.nan)
+        eph, epv = _dop(eph_x100), _dop(epv_x100)
         return self._gnss_sample(
-            t_us,
-            m.fix_type,
-            m.lat,
-            m.lon,
-            alt_m,
-            vel,
-            self._acc_or(m.h_acc * 1e-3, eph, cfg.default_h_acc_m),
-            self._acc_or(m.v_acc * 1e-3, epv, cfg.default_v_acc_m),
-            self._acc_or(m.vel_acc * 1e-3, None, cfg.default_vel_acc_mps),
+            t_us, fix_type, lat, lon, alt_m, v,
+            self._acc_or(h_acc * 1e-3, eph, cfg.default_h_acc_m),
+            self._acc_or(v_acc * 1e-3, epv, cfg.default_v_acc_m),
+            self._acc_or(vel_acc * 1e-3, None, cfg.default_vel_acc_mps),
         )
 
-    def _on_gps_input(self, m: Any, recv_t_us: int) -> GnssSample | None:
-        if not self._gnss_id_ok(m.gps_id):
+    def _on_gps_input(self, src: tuple[int, int], f: Fields, recv_t_us: int) -> GnssSample | None:
+        (t, _week_ms, lat, lon, alt, hdop, vdop, vn, ve, vd, sacc, hacc, vacc, ign, _week,
+         gps_id, fix_type) = f[:17]
+        if not self._gnss_id_ok(gps_id):
             return None
         cfg = self.config
-        ign: int = m.ignore_flags
-
-        def used(flag: int, value: float) -> float:
-            return math.nan if ign & flag else value
-
-        alt = used(mavlink.GPS_INPUT_IGNORE_FLAG_ALT, m.alt)
-        vn = used(mavlink.GPS_INPUT_IGNORE_FLAG_VEL_HORIZ, m.vn)
-        ve = used(mavlink.GPS_INPUT_IGNORE_FLAG_VEL_HORIZ, m.ve)
-        vd = used(mavlink.GPS_INPUT_IGNORE_FLAG_VEL_VERT, m.vd)
-        hacc = used(mavlink.GPS_INPUT_IGNORE_FLAG_HORIZONTAL_ACCURACY, m.horiz_accuracy)
-        vacc = used(mavlink.GPS_INPUT_IGNORE_FLAG_VERTICAL_ACCURACY, m.vert_accuracy)
-        sacc = used(mavlink.GPS_INPUT_IGNORE_FLAG_SPEED_ACCURACY, m.speed_accuracy)
-        hdop = used(mavlink.GPS_INPUT_IGNORE_FLAG_HDOP, m.hdop)
-        vdop = used(mavlink.GPS_INPUT_IGNORE_FLAG_VDOP, m.vdop)
+        i_alt, i_vh, i_vv, i_hacc, i_vacc, i_sacc, i_hdop, i_vdop = _IGN
         # NaN from an ignore flag is intended; NaN/Inf in a field the sender vouches for
         # is a broken sender.
-        vouched = [
-            v
-            for v, f in (
-                (m.alt, mavlink.GPS_INPUT_IGNORE_FLAG_ALT),
-                (m.vn, mavlink.GPS_INPUT_IGNORE_FLAG_VEL_HORIZ),
-                (m.ve, mavlink.GPS_INPUT_IGNORE_FLAG_VEL_HORIZ),
-                (m.vd, mavlink.GPS_INPUT_IGNORE_FLAG_VEL_VERT),
-                (m.horiz_accuracy, mavlink.GPS_INPUT_IGNORE_FLAG_HORIZONTAL_ACCURACY),
-                (m.vert_accuracy, mavlink.GPS_INPUT_IGNORE_FLAG_VERTICAL_ACCURACY),
-                (m.speed_accuracy, mavlink.GPS_INPUT_IGNORE_FLAG_SPEED_ACCURACY),
-            )
-            if not ign & f
-        ]
+        vouched = [v for v, flag in ((alt, i_alt), (vn, i_vh), (ve, i_vh), (vd, i_vv),
+                                     (hacc, i_hacc), (vacc, i_vacc), (sacc, i_sacc))
+                   if not ign & flag]
         if not all_finite(*vouched):
             self._reject("gnss_nonfinite", "GPS_INPUT field is NaN/Inf")
             return None
-        if math.isnan(alt):
+        if ign & i_alt:
             self._reject("gnss_no_alt", "GPS_INPUT with ALT ignored")
             return None
-        t_us = self._stamp(m.time_usec, recv_t_us, "gnss")
+        nan = math.nan
+        t_us = self._stamp(t, recv_t_us, "gnss")
         return self._gnss_sample(
-            t_us,
-            m.fix_type,
-            m.lat,
-            m.lon,
-            alt + cfg.geoid_sep_m,
-            (vn, ve, vd),
-            self._acc_or(hacc, hdop, cfg.default_h_acc_m),
-            self._acc_or(vacc, vdop, cfg.default_v_acc_m),
-            self._acc_or(sacc, None, cfg.default_vel_acc_mps),
+            t_us, fix_type, lat, lon, alt + cfg.geoid_sep_m,
+            (nan if ign & i_vh else vn, nan if ign & i_vh else ve, nan if ign & i_vv else vd),
+            self._acc_or(nan if ign & i_hacc else hacc, nan if ign & i_hdop else hdop,
+                         cfg.default_h_acc_m),
+            self._acc_or(nan if ign & i_vacc else vacc, nan if ign & i_vdop else vdop,
+                         cfg.default_v_acc_m),
+            self._acc_or(nan if ign & i_sacc else sacc, None, cfg.default_vel_acc_mps),
         )
 
-    def _on_hil_gps(self, m: Any, recv_t_us: int) -> GnssSample | None:
-        if not self._gnss_id_ok(m.id):
+    def _on_hil_gps(self, src: tuple[int, int], f: Fields, recv_t_us: int) -> GnssSample | None:
+        (t, lat, lon, alt, eph_x100, epv_x100, _vel, vn, ve, vd, _cog, fix_type, _sats,
+         gps_id) = f[:14]
+        if not self._gnss_id_ok(gps_id):
             return None
         cfg = self.config
-        t_us = self._stamp(m.time_usec, recv_t_us, "gnss")
-        eph, epv = _dop(m.eph), _dop(m.epv)
+        t_us = self._stamp(t, recv_t_us, "gnss")
+        eph, epv = _dop(eph_x100), _dop(epv_x100)
         return self._gnss_sample(
-            t_us,
-            m.fix_type,
-            m.lat,
-            m.lon,
-            m.alt * 1e-3 + cfg.geoid_sep_m,
-            (m.vn * 1e-2, m.ve * 1e-2, m.vd * 1e-2),
+            t_us, fix_type, lat, lon, alt * 1e-3 + cfg.geoid_sep_m,
+            (vn * 1e-2, ve * 1e-2, vd * 1e-2),
             self._acc_or(math.nan, eph, cfg.default_h_acc_m),
             self._acc_or(math.nan, epv, cfg.default_v_acc_m),
             cfg.default_vel_acc_mps,

@@ -3,7 +3,8 @@
 Addresses (pymavlink connection-string syntax)
     ``udpin:HOST:PORT`` / ``udp:HOST:PORT`` listen (replies go to the last sender),
     ``udpout:HOST:PORT`` send (and receive replies), ``tcp:HOST:PORT`` client,
-    ``/dev/ttyUSB0,921600`` serial (termios raw 8N1, no flow control; no pyserial needed).
+    ``/dev/ttyUSB0,921600`` serial (raw 8N1, no flow control, set up by pyserial: any baud
+    rate the driver accepts).
 
 A stream link (TCP, serial) that closes is reopened with a growing delay; the decoder is
 reset first so a partial frame from the old connection cannot corrupt the new one.
@@ -17,12 +18,11 @@ import contextlib
 import logging
 import os
 import socket
-import termios
-import tty
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, cast
 
+import serial
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from navd.diag import Counters
@@ -125,28 +125,30 @@ class _WriteOnlyProtocol(asyncio.BaseProtocol):
     pass
 
 
-_SERIAL_SPEEDS = {
-    b: getattr(termios, f"B{b}")
-    for b in (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 921600, 1000000,
-              1500000, 2000000, 3000000)
-    if hasattr(termios, f"B{b}")
-}
+def _open_serial(device: str, baud: int) -> int:
+    """Open ``device`` as a plain telemetry UART (raw 8N1, no flow control, no modem
+    control lines) and return a non-blocking descriptor the caller owns.
 
-
-def _configure_serial(fd: int, baud: int) -> None:
-    """Raw 8N1, no flow control, no modem control: a plain telemetry UART."""
-    speed = _SERIAL_SPEEDS.get(baud)
-    if speed is None:
-        raise ValueError(f"unsupported baud rate {baud}; choose one of {sorted(_SERIAL_SPEEDS)}")
-    tty.setraw(fd)
-    attrs = termios.tcgetattr(fd)
-    attrs[2] = (attrs[2] & ~(termios.CSIZE | termios.PARENB | termios.CSTOPB | termios.CRTSCTS)) | (
-        termios.CS8 | termios.CLOCAL | termios.CREAD
-    )
-    attrs[4] = speed
-    attrs[5] = speed
-    termios.tcsetattr(fd, termios.TCSANOW, attrs)
-    termios.tcflush(fd, termios.TCIOFLUSH)
+    pyserial does the port setup (including rates without a termios constant); its own
+    descriptor is closed again, the settings stay with the device.
+    """
+    try:
+        port = serial.Serial(device, baud, bytesize=serial.EIGHTBITS, parity=serial.PARITY_NONE,
+                             stopbits=serial.STOPBITS_ONE, xonxoff=False, rtscts=False,
+                             dsrdtr=False, timeout=0, exclusive=True)
+    except serial.SerialException as exc:  # an OSError only in name; keep reopen logic simple
+        raise OSError(str(exc)) from exc
+    except ValueError as exc:
+        raise ValueError(f"{device}: {exc}") from exc
+    try:
+        port.reset_input_buffer()
+        # The duplicate shares the open file (and pyserial's exclusive flock on it), so the
+        # port stays locked against a second opener after pyserial's descriptor is closed.
+        fd = os.dup(port.fileno())
+    finally:
+        port.close()
+    os.set_blocking(fd, False)
+    return fd
 
 
 class MavlinkLink:
@@ -212,9 +214,8 @@ class MavlinkLink:
             self._rx_transport = transport2
             self._tx_transport = transport2
             return sproto
-        fd = os.open(addr.device, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        fd = _open_serial(addr.device, addr.baud)
         try:
-            _configure_serial(fd, addr.baud)
             wfd = os.dup(fd)
         except BaseException:
             os.close(fd)
