@@ -115,5 +115,6 @@ def write_run(run: SimRun, out_dir: Path, progress: bool = False) -> None:
         "accel_bias_mps2": run.accel_bias_mps2.tolist(),
         "gyro_scale_factor_ppm": (run.gyro_scale * 1e6).tolist(),
         "accel_scale_factor_ppm": (run.accel_scale * 1e6).tolist(),
+        "randomized": run.randomized,
     }
     (out_dir / "meta.json").write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")

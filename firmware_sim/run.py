@@ -13,6 +13,7 @@ import numpy.typing as npt
 from tqdm import tqdm
 
 from firmware_sim.profiles import build_profile, dov_profile
+from firmware_sim.randomize import randomized
 from firmware_sim.scenario import Scenario
 from firmware_sim.sensors import corrupt_imu, simulate_gnss
 from firmware_sim.truth import build_truth
@@ -59,6 +60,8 @@ class SimRun:
         pol: polarization readings when the scenario has an enabled ``[polarization]``
             sensor (columns of :data:`firmware_sim.polarization.POL_COLUMNS` plus
             ``truth_idx``), else None.
+        randomized: what the scenario's ``[randomize]`` section drew for this seed (see
+            :func:`firmware_sim.randomize.randomized`); ``scenario`` is then that variant.
     """
 
     scenario: Scenario
@@ -84,6 +87,7 @@ class SimRun:
     pol: dict[str, npt.NDArray[Any]] | None = None
     gyro_rw_rps: Arr = field(default_factory=lambda: np.zeros((0, 3)))
     accel_rw_mps2: Arr = field(default_factory=lambda: np.zeros((0, 3)))
+    randomized: dict[str, Any] = field(default_factory=dict)
 
     @property
     def imu_dt_s(self) -> float:
@@ -180,6 +184,7 @@ def generate(scenario: Scenario, seed: int, progress: bool = False) -> SimRun:
     """
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    scenario, drawn = randomized(scenario, seed)
     dt_us = round(1e6 / scenario.imu.rate_hz)
     dt_s = dt_us * 1e-6
     n = max(1, math.floor(scenario.duration / dt_s + 1e-9))
@@ -220,5 +225,5 @@ def generate(scenario: Scenario, seed: int, progress: bool = False) -> SimRun:
         accel_bias_mps2=err.accel_bias_mps2, gyro_scale=err.gyro_scale,
         accel_scale=err.accel_scale, gyro_gm_rps=err.gyro_gm_rps,
         accel_gm_mps2=err.accel_gm_mps2, pol=pol, gyro_rw_rps=err.gyro_rw_rps,
-        accel_rw_mps2=err.accel_rw_mps2,
+        accel_rw_mps2=err.accel_rw_mps2, randomized=drawn,
     )

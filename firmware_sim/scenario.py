@@ -37,6 +37,7 @@ __all__ = [
     "MultirotorSpec",
     "PolarizationSpec",
     "PosStepSpec",
+    "RandomizeSpec",
     "Scenario",
     "ScenarioError",
     "ShipSpec",
@@ -314,6 +315,32 @@ class PolarizationSpec:
 
 
 @dataclass(frozen=True)
+class RandomizeSpec:
+    """Per-seed Monte Carlo variation (applied by :func:`firmware_sim.randomize.randomized`).
+
+    Every draw comes from its own random stream of the run's seed, so seed N always flies the
+    same variant.  Ranges are ``[low, high]`` (uniform); an empty range leaves the value alone.
+    Angles: a uniform draw in ``[-x, +x]`` deg added to the scenario's value.
+    """
+
+    enabled: bool = _f("", False)
+    yaw0_deg: float = _f("deg", 0.0, "initial yaw: + uniform in [-x, x]")
+    legs_rotate_deg: float = _f("deg", 0.0,
+                                "every horizontal velocity target rotated by one draw in [-x, x]")
+    legs_jitter_deg: float = _f("deg", 0.0,
+                                "then each target by its own draw in [-x, x]")
+    mirror_turns: bool = _f("", False, "turn directions all flipped with probability 1/2")
+    wind_speed_mps: tuple[float, ...] = _f("m/s", (), "[low, high]; fixed-wing only")
+    wind_dir_deg: float = _f("deg", 0.0, "wind direction (from) + uniform in [-x, x]")
+    max_crab_deg: float = _f("deg", 90.0,
+                             "wind speed capped at min airspeed * sin(max_crab_deg)")
+    gyro_offset_rps: tuple[float, ...] = _f("rad/s", (),
+                                            "[low, high] |offset| per axis, random sign")
+    accel_offset_mps2: tuple[float, ...] = _f("m/s^2", (),
+                                              "[low, high] |offset| per axis, random sign")
+
+
+@dataclass(frozen=True)
 class Scenario:
     """A validated scenario.  ``duration`` (s) = ``duration_s * duration_scale``."""
 
@@ -326,6 +353,7 @@ class Scenario:
     duration_scale: float = _f("", 1.0)
     dov: DovSpec = field(default_factory=DovSpec)
     polarization: PolarizationSpec = field(default_factory=PolarizationSpec)
+    randomize: RandomizeSpec = field(default_factory=RandomizeSpec)
     source: str = _f("", "", "file it was loaded from")
 
     @property
@@ -359,6 +387,24 @@ GRADES: dict[str, dict[str, float]] = {
         "accel_bias_sigma_mps2": 5.0 * _MG,
         "arw_rad_per_sqrt_s": 0.24 * DEG / 60.0,
         "vrw_mps_per_sqrt_s": 0.3 / 60.0,
+    },
+    # Consumer MEMS of a flight controller, as installed: the noise densities of the noisier
+    # of two common parts, Bosch BMI088 (datasheet BST-BMI088-DS001: gyro 0.014 deg/s/sqrt(Hz),
+    # accel 175 ug/sqrt(Hz) typ.) rather than TDK ICM-42688-P (DS-000347: 0.0028 deg/s/sqrt(Hz),
+    # 70 ug/sqrt(Hz)); uncalibrated offsets of the size both datasheets allow (gyro zero-rate
+    # output +-0.5 deg/s ICM-42688, +-1 deg/s BMI088; accel zero-g +-20 mg typ., more after
+    # soldering), drawn with sigma 0.3 deg/s and 35 mg; sensitivity tolerance +-0.5 % as a
+    # 5000 ppm sigma.  Scenarios usually set the offsets per seed in [randomize] instead.
+    "consumer_mems": {
+        "gyro_bias_sigma_rps": 0.3 * DEG,
+        "accel_bias_sigma_mps2": 35.0 * _MG,
+        "arw_rad_per_sqrt_s": 0.014 * DEG,
+        "vrw_mps_per_sqrt_s": 175e-6 * 9.80665,
+        "gyro_scale_factor_sigma_ppm": 5000.0,
+        "accel_scale_factor_sigma_ppm": 5000.0,
+        # in-run drift: a few deg/h of bias instability over minutes
+        "gyro_bias_rw_rps_per_sqrt_s": 5.0 * _DEG_PER_H / 10.0,
+        "accel_bias_rw_mps2_per_sqrt_s": 0.1 * _MG,
     },
     # seed 002 (RLG + quartz accelerometers): 0.003 deg/h, 10 mGal, 0.0005 deg/sqrt(h),
     # 10 mGal/sqrt(Hz); its Table 2 gives the random walk per sqrt(h), Table 1's per sqrt(s)
@@ -571,8 +617,20 @@ def _validate(sc: Scenario) -> None:
         _check(pol.aop_sigma_deg >= 0.0 and pol.dop_sigma >= 0.0, "polarization.aop_sigma_deg",
                "noises must be >= 0")
         _check(0.0 < pol.dop_max <= 1.0, "polarization.dop_max", "must be in (0, 1]")
+    _validate_randomize(sc.randomize)
     _check(sc.dov.xi_period_s > 0.0, "dov.xi_period_s", "must be > 0 s")
     _check(sc.dov.eta_period_s > 0.0, "dov.eta_period_s", "must be > 0 s")
+
+
+def _validate_randomize(r: RandomizeSpec) -> None:
+    for name in ("yaw0_deg", "legs_rotate_deg", "legs_jitter_deg", "wind_dir_deg"):
+        v = getattr(r, name)
+        _check(0.0 <= v <= 180.0, f"randomize.{name}", f"must be in [0, 180] deg, got {v}")
+    _check(0.0 < r.max_crab_deg <= 90.0, "randomize.max_crab_deg", "must be in (0, 90] deg")
+    for name in ("wind_speed_mps", "gyro_offset_rps", "accel_offset_mps2"):
+        v = getattr(r, name)
+        _check(len(v) in (0, 2) and all(x >= 0.0 for x in v) and (not v or v[0] <= v[1]),
+               f"randomize.{name}", f"must be [] or [low, high] with 0 <= low <= high, got {v}")
 
 
 # ---------------------------------------------------------------------------------------------
