@@ -103,6 +103,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override a config value (repeatable)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument("--max-skipped", type=float, default=1.0, metavar="PERCENT",
+                    help="CSV input: exit 1 when more than this share of the rows is skipped "
+                         "(bad rows, time stamps out of order), after writing the output "
+                         "(default %(default)s %%)")
     ap.add_argument("--mcap", metavar="FILE",
                     help="also write the output rows to FILE as MCAP for Foxglove (pose, "
                          "location, heading status; log time = sensor time)")
@@ -159,7 +163,20 @@ def main(argv: list[str] | None = None) -> int:
     counters = dict(est.counters)
     print(f"navd replay: {rows} solution rows -> {out}; skipped rows: {len(rep.issues)}; "
           f"estimator: {counters}", file=sys.stderr)
-    return _exit_code(rows, est)
+    rc = _exit_code(rows, est)
+    return rc or _skipped_code(rep, a.max_skipped)
+
+
+def _skipped_code(rep: ReadReport, max_percent: float) -> int:
+    """1 (saying why) when more than ``max_percent`` of the input rows were skipped: a
+    replay of what is left would look like a success while describing another run."""
+    total = rep.rows + len(rep.issues)
+    if not total or len(rep.issues) * 100.0 <= max_percent * total:
+        return 0
+    print(f"navd replay: error: {len(rep.issues)} of {total} input rows skipped "
+          f"({len(rep.issues) * 100.0 / total:.2f} % > --max-skipped {max_percent:g} %); "
+          f"first: {rep.issues[0]}", file=sys.stderr)
+    return 1
 
 
 def _replay_recording(a: argparse.Namespace) -> int:
@@ -180,16 +197,27 @@ def _replay_recording(a: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"navd replay: config error: {exc}", file=sys.stderr)
         return 2
+    except (TypeError, ValueError, AttributeError, KeyError) as exc:
+        # a damaged header can hold JSON of any shape where the config should be
+        print(f"navd replay: {a.recording}: the recorded configuration is unusable "
+              f"({type(exc).__name__}: {exc}); give one with --config", file=sys.stderr)
+        return 2
     rate = a.rate if a.rate is not None else rec.output_rate_hz
     out = Path(a.out)
     tmp = out.with_suffix(out.suffix + ".part")
     rows = 0
-    with open(tmp, "w") as fh, _mcap(a, est) as mc:
-        writer = _Tee(SolutionJsonlWriter(fh) if out.suffix == ".jsonl" else SolutionWriter(fh),
-                      mc)
-        for sol in solutions(est, rec.samples(), rate):
-            writer.write(sol)
-            rows += 1
+    try:
+        with open(tmp, "w") as fh, _mcap(a, est) as mc:
+            writer = _Tee(SolutionJsonlWriter(fh) if out.suffix == ".jsonl"
+                          else SolutionWriter(fh), mc)
+            for sol in solutions(est, rec.samples(), rate):
+                writer.write(sol)
+                rows += 1
+    except RecordingError as exc:  # a damaged record: no half-written output is left
+        tmp.unlink(missing_ok=True)
+        print(f"navd replay: {exc} (after {rows} solution rows; nothing written)",
+              file=sys.stderr)
+        return 2
     tmp.replace(out)
     if rec.truncated_bytes:
         print(f"navd replay: recording ends in a partial record ({rec.truncated_bytes} bytes "

@@ -138,7 +138,7 @@ class RecordingReader:
         off += _LEN.size
         try:
             header = json.loads(d[off : off + n])
-        except ValueError as exc:
+        except (ValueError, RecursionError) as exc:
             raise RecordingError(f"{self.path}: header is not JSON: {exc}") from exc
         if not isinstance(header, dict) or header.get("format") != FORMAT_VERSION:
             raise RecordingError(f"{self.path}: unsupported recording format "
@@ -186,9 +186,14 @@ class RecordingReader:
                     p += _VEC3.size
                 if flags & _HAS_VEL:
                     vel = _VEC3.unpack_from(d, p)
+                try:
+                    fix_type = FixType(fix)
+                except ValueError:
+                    raise RecordingError(f"{self.path}: GNSS record at byte {off} has fix "
+                                         f"type {fix}, which no FixType is (damaged file?)"
+                                         ) from None
                 off += need
-                yield GnssSample(t, lat, lon, alt, vn, ve, vd, ha, va, sa, FixType(fix), pos,
-                                 vel)
+                yield GnssSample(t, lat, lon, alt, vn, ve, vd, ha, va, sa, fix_type, pos, vel)
             elif kind == b"P":
                 if off + 1 + _POL.size > end:
                     break
@@ -196,7 +201,8 @@ class RecordingReader:
                 off += 1 + _POL.size
                 yield PolSample(t, aop, dop, utc)
             else:
-                raise RecordingError(f"{self.path}: bad record type {kind!r} at byte {off}")
+                raise RecordingError(f"{self.path}: bad record type {kind!r} at byte {off} "
+                                     "(damaged file?)")
         self.truncated_bytes = end - off
 
 
