@@ -19,6 +19,7 @@ import numpy.typing as npt
 
 from firmware_sim.scenario import (
     DovSpec,
+    FixedWingSpec,
     GroundSpec,
     ModulationSpec,
     MultirotorSpec,
@@ -169,6 +170,39 @@ def multirotor_profile(t: Arr, spec: MultirotorSpec) -> Profile:
     return Profile(np.stack([roll, pitch, yaw], axis=1), vel)
 
 
+def fixed_wing_profile(t: Arr, spec: FixedWingSpec) -> Profile:
+    """Fixed-wing in coordinated flight through a steady wind (see :class:`FixedWingSpec`).
+
+    Ground velocity = air velocity (horizontal part along the yaw, vertical part the climb
+    rate) + wind.  The roll is solved exactly for zero lateral specific force at the given yaw
+    and pitch: with ``u = Rz(yaw)^T f`` and ``w = Ry(pitch)^T u``, the body y component of
+    ``Rx(roll)^T w`` vanishes for ``roll = atan2(w_y, -w_z)`` (the branch with the specific
+    force along body -z, i.e. the lift up through the wing).
+    """
+    va, va_dot = targets(t, spec.airspeed0_mps, _abs_targets(spec.airspeed, 1.0))
+    yaw, yaw_rate = targets(t, spec.yaw0_deg * DEG, _turn_targets(spec.yaw0_deg * DEG,
+                                                                  spec.turns))
+    hdot, hddot = targets(t, 0.0, _abs_targets(spec.climb, 1.0))
+    vh = np.sqrt(va**2 - hdot**2)
+    vh_dot = (va * va_dot - hdot * hddot) / vh
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    vel = np.stack([vh * cy + spec.wind_n_mps, vh * sy + spec.wind_e_mps, -hdot], axis=1)
+    acc = np.stack([vh_dot * cy - vh * yaw_rate * sy, vh_dot * sy + vh * yaw_rate * cy,
+                    -hddot], axis=1)
+    g = gravity(spec.lat_deg * DEG, spec.alt_m)
+    f = acc.copy()
+    f[:, 2] -= g
+    load = np.linalg.norm(f, axis=1) / g
+    pitch = np.arcsin(hdot / va) + spec.alpha_deg * DEG * load
+    u_x = cy * f[:, 0] + sy * f[:, 1]
+    u_y = -sy * f[:, 0] + cy * f[:, 1]
+    cp, sp = np.cos(pitch), np.sin(pitch)
+    w_y = u_y
+    w_z = sp * u_x + cp * f[:, 2]
+    roll = np.arctan2(w_y, -w_z)
+    return Profile(np.stack([roll, pitch, yaw], axis=1), vel)
+
+
 def modulation_angle(t: Arr, m: ModulationSpec) -> Arr:
     """Rotation-modulation angle (rad) at ``t``: dwell, rotate +angle, dwell, rotate back.
 
@@ -224,6 +258,8 @@ def build_profile(t: Arr, spec: TrajectorySpec) -> Profile:
         return multirotor_profile(t, spec)
     if isinstance(spec, ShipSpec):
         return ship_profile(t, spec)
+    if isinstance(spec, FixedWingSpec):
+        return fixed_wing_profile(t, spec)
     return static_profile(t, spec)
 
 

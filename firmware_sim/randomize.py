@@ -16,7 +16,14 @@ from typing import Any
 
 import numpy as np
 
-from firmware_sim.scenario import MultirotorSpec, RandomizeSpec, Scenario, TurnEvent, VelEvent
+from firmware_sim.scenario import (
+    FixedWingSpec,
+    MultirotorSpec,
+    RandomizeSpec,
+    Scenario,
+    TurnEvent,
+    VelEvent,
+)
 from firmware_sim.sensors import rng
 from navd.units import DEG
 
@@ -79,7 +86,7 @@ def randomized(sc: Scenario, seed: int) -> tuple[Scenario, dict[str, Any]]:
                                  vel=_rotate_vel(tr.vel, d_legs * DEG, jit),
                                  turns=_mirror(tr.turns) if mirror else tr.turns)
         drawn["legs_rotate_deg"] = d_legs
-    elif hasattr(tr, "wind_n_mps"):
+    elif isinstance(tr, FixedWingSpec):
         tr = _fixed_wing_variant(tr, r, d_yaw, mirror, wind_u, d_wind_dir, drawn)
     elif hasattr(tr, "yaw0_deg"):
         tr = dataclasses.replace(tr, yaw0_deg=tr.yaw0_deg + d_yaw)
@@ -95,17 +102,18 @@ def randomized(sc: Scenario, seed: int) -> tuple[Scenario, dict[str, Any]]:
     return out, drawn
 
 
-def _fixed_wing_variant(tr: Any, r: RandomizeSpec, d_yaw: float, mirror: bool, wind_u: float,
-                        d_wind_dir: float, drawn: dict[str, Any]) -> Any:
+def _fixed_wing_variant(tr: FixedWingSpec, r: RandomizeSpec, d_yaw: float, mirror: bool,
+                        wind_u: float, d_wind_dir: float, drawn: dict[str, Any]
+                        ) -> FixedWingSpec:
     """Yaw, turn directions and wind of a fixed-wing variant (wind speed capped so that the
-    crab angle stays within ``max_crab_deg`` at the slowest airspeed)."""
+    crab angle stays within ``max_crab_deg`` at the slowest horizontal airspeed)."""
     w_n, w_e = tr.wind_n_mps, tr.wind_e_mps
     speed = math.hypot(w_n, w_e)
     from_dir = math.atan2(-w_e, -w_n)  # where the wind blows from, rad
     if r.wind_speed_mps:
         lo, hi = r.wind_speed_mps
         speed = lo + (hi - lo) * wind_u
-    cap = tr.min_airspeed_mps() * math.sin(r.max_crab_deg * DEG)
+    cap = tr.min_horizontal_airspeed_mps() * math.sin(r.max_crab_deg * DEG)
     speed = min(speed, cap)
     from_dir += d_wind_dir * DEG
     w_n, w_e = -speed * math.cos(from_dir), -speed * math.sin(from_dir)

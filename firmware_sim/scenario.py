@@ -29,6 +29,7 @@ from navd.units import DEG
 __all__ = [
     "DovSpec",
     "DropoutSpec",
+    "FixedWingSpec",
     "GnssSpec",
     "GroundSpec",
     "ImuSpec",
@@ -157,6 +158,39 @@ class MultirotorSpec(_Where):
 
 
 @dataclass(frozen=True)
+class FixedWingSpec(_Where):
+    """Fixed-wing aircraft in coordinated flight through a steady wind.
+
+    Airspeed, yaw and climb-rate profiles; body x points along the air-relative velocity in
+    the horizontal (no sideslip), so with wind the GNSS course differs from the yaw by the
+    crab angle.  Turns are coordinated: the bank puts the specific force in the body x-z
+    plane (no lateral force), so the bank follows ``tan(bank) ~ V_air * yaw_rate / g``.  Pitch
+    is the flight-path angle plus ``alpha_deg`` times the load factor (the wing needs more
+    angle of attack in a banked turn).  The flight starts airborne at ``airspeed0_mps``.
+    """
+
+    kind: str = _f("", "fixed_wing")
+    yaw0_deg: float = _f("deg", 0.0)
+    airspeed0_mps: float = _f("m/s", 20.0)
+    airspeed: tuple[TargetEvent, ...] = _f("m/s (targets)", ())
+    turns: tuple[TurnEvent, ...] = _f("deg", ())
+    climb: tuple[TargetEvent, ...] = _f("m/s (climb-rate targets, up positive)", ())
+    wind_n_mps: float = _f("m/s", 0.0, "wind velocity (the air moves toward) north")
+    wind_e_mps: float = _f("m/s", 0.0, "wind velocity east")
+    alpha_deg: float = _f("deg", 3.0, "angle of attack in 1-g flight")
+
+    def min_airspeed_mps(self) -> float:
+        """The slowest airspeed the profile flies (its targets and start), m/s."""
+        return min([self.airspeed0_mps, *(ev.to for ev in self.airspeed)])
+
+    def min_horizontal_airspeed_mps(self) -> float:
+        """A lower bound of the horizontal airspeed: the slowest airspeed with the steepest
+        climb or descent rate, m/s (what bounds the crab angle in a given wind)."""
+        climb = max([0.0, *(abs(ev.to) for ev in self.climb)])
+        return math.sqrt(self.min_airspeed_mps() ** 2 - climb**2)
+
+
+@dataclass(frozen=True)
 class ModulationSpec:
     """Single-axis rotation modulation of the IMU about body z: 0 -> 180 deg -> 0 ..."""
 
@@ -184,9 +218,10 @@ class ShipSpec(_Where):
     modulation: ModulationSpec = field(default_factory=ModulationSpec)
 
 
-TrajectorySpec = StaticSpec | GroundSpec | MultirotorSpec | ShipSpec
+TrajectorySpec = StaticSpec | GroundSpec | MultirotorSpec | ShipSpec | FixedWingSpec
 _KINDS: dict[str, type[Any]] = {
     "static": StaticSpec, "ground": GroundSpec, "multirotor": MultirotorSpec, "ship": ShipSpec,
+    "fixed_wing": FixedWingSpec,
 }
 
 
@@ -552,6 +587,15 @@ def _validate(sc: Scenario) -> None:
         _check_events(tr.vel, "trajectory.vel")
         _check_events(tr.turns, "trajectory.turns")
         _check(tr.drag_per_s >= 0.0, "trajectory.drag_per_s", "must be >= 0 1/s")
+    elif isinstance(tr, FixedWingSpec):
+        for name in ("airspeed", "turns", "climb"):
+            _check_events(getattr(tr, name), f"trajectory.{name}")
+        _check(tr.min_airspeed_mps() > 5.0, "trajectory.airspeed",
+               "airspeeds (start and targets) must be > 5 m/s")
+        for i, ev in enumerate(tr.climb):
+            _check(abs(ev.to) < 0.5 * tr.min_airspeed_mps(), f"trajectory.climb[{i}].to",
+                   "climb rate must be below half the slowest airspeed (m/s)")
+        _check(-15.0 <= tr.alpha_deg <= 15.0, "trajectory.alpha_deg", "must be in [-15, 15] deg")
     elif isinstance(tr, ShipSpec):
         _check_events(tr.turns, "trajectory.turns")
         _check(tr.accel_s > 0.0, "trajectory.accel_s", "must be > 0 s")

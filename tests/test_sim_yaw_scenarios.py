@@ -237,3 +237,99 @@ def test_consumer_imu_at_rest_shows_its_offsets_and_noise() -> None:
     d = f.mean(axis=0) - f_true.mean(axis=0) - aoff
     assert np.max(np.abs(d[:2])) < 3 * MG
     assert abs(d[2]) < 3 * MG + 3 * 0.005 * 9.81
+
+
+def _crab_deg(run: SimRun) -> Arr:
+    """(N+1,) yaw minus GNSS course (truth), deg, wrapped."""
+    v = run.truth_vel_n
+    course = np.arctan2(v[:, 1], v[:, 0])
+    return np.degrees((run.truth_euler[:, 2] - course + np.pi) % (2 * np.pi) - np.pi)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_fixed_wing_truth_is_coordinated_flight_in_wind(seed: int) -> None:
+    """GIVEN fixed_wing_wind on three seeds,
+    WHEN its truth is checked by finite differences and against the flight it claims,
+    THEN the IMU increments match a - g (+ Coriolis) to 0.02 m/s^2; the turns are coordinated
+    (no lateral specific force in the body: |f_y| < 0.02 m/s^2) with the bank equal to
+    atan(V_air * yaw_rate / g) within 1.5 deg in level flight and peaking at 25-40 deg; the
+    airspeed (ground velocity minus the wind) stays within 15-25 m/s and the body x axis
+    points along the horizontal air velocity; the wind is 3-10 m/s."""
+    from firmware_sim.scenario import FixedWingSpec
+
+    run = _run("fixed_wing_wind", seed)
+    tr = run.scenario.trajectory
+    assert isinstance(tr, FixedWingSpec)
+    f_imu, f_kin = _specific_force_n(run)
+    assert np.max(np.abs(f_imu - f_kin)) < 0.02
+    f_b = run.imu_inc_true[:, 3:6] / run.imu_dt_s
+    assert np.max(np.abs(f_b[:, 1])) < 0.02
+    assert np.min(f_b[:, 2]) < -9.0 and np.max(f_b[:, 2]) < 0.0
+    wind = np.array([tr.wind_n_mps, tr.wind_e_mps, 0.0])
+    assert 3.0 <= math.hypot(tr.wind_n_mps, tr.wind_e_mps) <= 10.0 + 1e-9
+    air = run.truth_vel_n - wind
+    va = np.linalg.norm(air, axis=1)
+    assert va.min() >= 15.0 and va.max() <= 25.0
+    air_dir = np.arctan2(air[:, 1], air[:, 0])
+    d = (run.truth_euler[:, 2] - air_dir + np.pi) % (2 * np.pi) - np.pi
+    assert np.max(np.abs(d)) < 1e-6
+    yaw = np.unwrap(run.truth_euler[:, 2])
+    rate = np.gradient(yaw, run.imu_dt_s)
+    g = gravity(float(run.truth_pos[0, 0]), float(run.truth_pos[0, 2]))
+    level = np.abs(run.truth_vel_n[:, 2]) < 1e-9
+    va_h = np.hypot(air[:, 0], air[:, 1])
+    bank_model = np.degrees(np.arctan(va_h * rate / g))
+    roll = np.degrees(run.truth_euler[:, 0])
+    # the alpha-times-load pitch tilts the lift a little: within 1.5 deg of the textbook bank
+    assert np.max(np.abs(roll - bank_model)[level]) < 1.5
+    assert 25.0 <= np.max(np.abs(roll)) <= 40.0
+
+
+def test_fixed_wing_crab_angles_over_seeds() -> None:
+    """GIVEN fixed_wing_wind on seeds 1..12,
+    WHEN the truth yaw is compared with the truth GNSS course,
+    THEN no seed crabs by more than 30 deg, some crab by more than 20 deg, every seed by
+    more than 5 deg (wind >= 3 m/s at <= 24 m/s turns through the crosswind), and the wind
+    directions drawn spread over more than 270 deg."""
+    worst = []
+    dirs = []
+    for seed in range(1, 13):
+        run = generate(load_scenario("fixed_wing_wind"), seed=seed)
+        worst.append(float(np.max(np.abs(_crab_deg(run)))))
+        dirs.append(run.randomized["wind_from_deg"])
+    assert max(worst) <= 30.0 + 1e-6
+    assert max(worst) > 20.0
+    assert min(worst) > 5.0
+    assert np.ptp(dirs) > 270.0
+
+
+def test_fixed_wing_wind_capped_by_max_crab() -> None:
+    """GIVEN fixed_wing_wind overridden to fly as slow as 15 m/s,
+    WHEN the wind is drawn for seeds 1..10,
+    THEN every wind is at most sqrt(15^2 - 2^2) sin(30 deg) = 7.43 m/s (the 2 m/s climb
+    counted) and no seed crabs beyond 30 deg."""
+    sc = load_scenario("fixed_wing_wind", {"trajectory.airspeed": [
+        {"t_s": 35.0, "dur_s": 6.0, "to": 15.0}]})
+    for seed in range(1, 11):
+        run = generate(sc, seed=seed)
+        assert run.randomized["wind_speed_mps"] <= 7.44
+        assert float(np.max(np.abs(_crab_deg(run)))) <= 30.0 + 1e-6
+
+
+@pytest.mark.parametrize(("key", "value", "field"), [
+    ("trajectory.airspeed0_mps", 3.0, "trajectory.airspeed"),
+    ("trajectory.climb", [{"t_s": 1.0, "dur_s": 2.0, "to": 15.0}], "trajectory.climb[0].to"),
+    ("trajectory.alpha_deg", 40.0, "trajectory.alpha_deg"),
+    ("randomize.wind_speed_mps", [8.0, 3.0], "randomize.wind_speed_mps"),
+    ("randomize.yaw0_deg", 200.0, "randomize.yaw0_deg"),
+    ("trajectory.bank_deg", 20.0, "trajectory.bank_deg"),
+])
+def test_fixed_wing_and_randomize_reject_bad_values(key: str, value: object, field: str) -> None:
+    """GIVEN fixed_wing_wind with one bad value (too slow, climb steeper than half the
+    airspeed, absurd angle of attack, reversed wind range, yaw range beyond 180, unknown key),
+    WHEN it is loaded,
+    THEN a ScenarioError names the offending field."""
+    from firmware_sim import ScenarioError
+
+    with pytest.raises(ScenarioError, match=field.replace("[", r"\[").replace("]", r"\]")):
+        load_scenario("fixed_wing_wind", {key: value})
