@@ -50,6 +50,9 @@ class ImuSection:
     accel_bias_rw: float = _f(1e-5, "mps2_per_sqrt_s")
     max_accel: float = _f(50.0 * G0, "mps2")
     max_rate: float = _f(2000.0, "dps")
+    # at rest (IMU still over 5 s, Allan-type test), measure the gyro offset and feed it to
+    # the gyro-bias state, as autopilots calibrate at boot (navd/core/aiding/gyro_rest.py)
+    rest_calibration: bool = _f(True)
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,7 @@ from navd.core.aiding.base import (
 )
 from navd.core.aiding.dov import DovAid, DovField
 from navd.core.aiding.gnss import GnssAiding
+from navd.core.aiding.gyro_rest import GyroRest, rest_push
 from navd.core.earth import geodetic_to_ecef, radii
 from navd.core.output import attitude_outputs
 from navd.core.rotation import euler_to_mat_into
@@ -135,6 +136,8 @@ class Estimator:
         # epoch before the GNSS rows are formed.
         self.dov_aid = DovAid(dov_field, dov_refused)
         self.gnss = GnssAiding(c)
+        self.gyro_rest = GyroRest(c)
+        self._rest_acc = self.gyro_rest.acc
         self.pol = pol
         aids: list[Aid] = [self.dov_aid, self.gnss]
         if pol is not None:
@@ -174,6 +177,7 @@ class Estimator:
         self._acc[:] = 0.0
         for aid in self.aids:
             aid.reset()
+        self.gyro_rest.reset()
 
     def restart(self, reason: str) -> None:
         """Count ``reason`` and start over (wait for levelling and a fix): for an aid whose
@@ -344,6 +348,9 @@ class Estimator:
                     self._reset_state("reinit_time_jump")
         self.t_us = s.t_us
         cnt["imu"] += 1
+        if rest_push(self._rest_acc, s.dtheta_x, s.dtheta_y, s.dtheta_z, s.dvel_x, s.dvel_y,
+                     s.dvel_z, dt, self.gyro_rest.window_s):
+            self.gyro_rest.window_done(self)
         if self._stage == _WAIT:
             self._level(s, dt)
             return False

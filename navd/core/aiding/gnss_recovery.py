@@ -23,6 +23,14 @@ velocity  likewise onto the GNSS velocity (horizontal; vertical when the receive
           that drove it are wrong too: the tilt, heading and bias variances grow by their
           initial (prior) variances, so the next fixes can correct them.
 
+bias limits  a gyro bias estimate beyond ``GYRO_BIAS_LIMIT`` (10 deg/s) or an accelerometer
+          bias beyond ``ACCEL_BIAS_LIMIT`` (1.5 m/s^2, ~150 mg) on any axis is no sensor's
+          offset (consumer MEMS are specified to a few deg/s and ~100 mg): the filter has
+          diverged and is explaining its own error with impossible biases.  Both bias
+          estimates go back to the configured (known) biases with their prior variances
+          and no correlations, and tilt and heading widen by their priors, as after a
+          velocity lock-out (``reset_bias_limit``).
+
 Each reset is counted (``reset_lockout_pos`` / ``reset_lockout_vel``), which the daemon
 logs (rate-limited) and the status record shows.  The history ring of past nominal states
 is cleared, because a delayed fix must not be linearised about a state from before the
@@ -45,6 +53,10 @@ if TYPE_CHECKING:
 
 _POS = 6  # error-state index of dlat (then dlon, dh)
 _VEL = 3  # error-state index of dv_N
+_BG = 9  # error-state index of the gyro bias (then the accelerometer bias at 12)
+
+GYRO_BIAS_LIMIT = 10.0 * math.pi / 180.0  # rad/s: beyond any MEMS gyro's offset
+ACCEL_BIAS_LIMIT = 1.5  # m/s^2: beyond any MEMS accelerometer's offset
 
 
 class LockoutRecovery:
@@ -95,6 +107,7 @@ class LockoutRecovery:
         if self._vel_refused_us == -2:
             self._reset_velocity(est, s_sd, vel_d_reported)
             self._vel_refused_us = -1
+        check_bias_limits(est)
 
     def _watch(self, flag: float, refused_us: int, t_us: int, step: int) -> int:
         """The new start of the refusal run after an epoch with outcome ``flag``; -2 when
@@ -139,7 +152,6 @@ class LockoutRecovery:
         z = est.innov[INNOV_VEL]
         if not (math.isfinite(z[0]) and math.isfinite(z[1])):
             return
-        c = self.cfg
         v = est.vel_n
         v[0] -= z[0]
         v[1] -= z[1]
@@ -152,13 +164,42 @@ class LockoutRecovery:
             P[:, k] = 0.0
             P[k, k] = s_sd * s_sd
         # what drove the velocity away is in doubt as much as at the start
-        tilt2 = c.init.tilt_sd ** 2
-        P[0, 0] += tilt2
-        P[1, 1] += tilt2
-        P[2, 2] += c.init.heading_sd ** 2
-        for k in range(9, 12):
-            P[k, k] += c.imu.gyro_bias_sd ** 2
-        for k in range(12, 15):
-            P[k, k] += c.imu.accel_bias_sd ** 2
+        _widen_attitude_and_biases(est)
         st.history_reset(est.buf)
         est.counters["reset_lockout_vel"] += 1
+
+
+def _widen_attitude_and_biases(est: Estimator) -> None:
+    """Add the prior variances of tilt, heading and both biases to P (a PSD matrix plus a
+    non-negative diagonal stays PSD)."""
+    c = est.cfg
+    P = est.P
+    tilt2 = c.init.tilt_sd ** 2
+    P[0, 0] += tilt2
+    P[1, 1] += tilt2
+    P[2, 2] += c.init.heading_sd ** 2
+    for k in range(_BG, _BG + 3):
+        P[k, k] += c.imu.gyro_bias_sd ** 2
+    for k in range(_BG + 3, _BG + 6):
+        P[k, k] += c.imu.accel_bias_sd ** 2
+
+
+def check_bias_limits(est: Estimator) -> bool:
+    """Reset both bias estimates to the configured ones when either is beyond its physical
+    limit (see the module doc); True when it did."""
+    bg = est.bias_g
+    ba = est.bias_a
+    if (abs(bg[0]) <= GYRO_BIAS_LIMIT and abs(bg[1]) <= GYRO_BIAS_LIMIT
+            and abs(bg[2]) <= GYRO_BIAS_LIMIT and abs(ba[0]) <= ACCEL_BIAS_LIMIT
+            and abs(ba[1]) <= ACCEL_BIAS_LIMIT and abs(ba[2]) <= ACCEL_BIAS_LIMIT):
+        return False
+    c = est.cfg
+    bg[:] = c.imu.gyro_bias
+    ba[:] = c.imu.accel_bias
+    P = est.P
+    for k in range(_BG, _BG + 6):
+        P[k, :] = 0.0
+        P[:, k] = 0.0
+    _widen_attitude_and_biases(est)
+    est.counters["reset_bias_limit"] += 1
+    return True
