@@ -430,6 +430,33 @@ def takeoff_s(t_us: npt.NDArray[np.int64], rates_rps: Arr) -> float:
     return math.nan
 
 
+def reference_errors(t_us: npt.NDArray[np.int64], angles_rad: Arr,
+                     ref: tuple[npt.NDArray[np.int64], *tuple[Arr, ...]],
+                     max_gap_us: int = 100_000) -> tuple[Arr, npt.NDArray[np.bool_]]:
+    """Angle errors against a reference series (a log's onboard attitude), wrapped.
+
+    Args:
+        t_us: (K,) solution times, us.
+        angles_rad: (K, J) estimated angles, rad (e.g. roll, pitch[, yaw]).
+        ref: reference times (R,) int64 us, then J (R,) angle series, rad, same order.
+        max_gap_us: an instant counts only where a reference sample is this close.
+
+    Returns:
+        (K, J) estimate - reference, rad, in [-pi, pi); (K,) the instants with a reference
+        sample within ``max_gap_us``.  The reference is unwrapped before interpolating, so
+        an angle through +-180 deg interpolates the short way.
+    """
+    rt_us = ref[0]
+    rt = rt_us.astype(np.float64)
+    idx = np.clip(np.searchsorted(rt_us, t_us), 1, len(rt_us) - 1)
+    near = np.minimum(np.abs(rt_us[idx] - t_us), np.abs(rt_us[idx - 1] - t_us)) <= max_gap_us
+    err = np.empty((len(t_us), len(ref) - 1))
+    for j, ang in enumerate(ref[1:]):
+        r = np.interp(t_us.astype(np.float64), rt, np.unwrap(ang))
+        err[:, j] = (angles_rad[:, j] - r + math.pi) % (2 * math.pi) - math.pi
+    return err, near
+
+
 def score_log(spec: RealLog) -> dict[str, Any]:
     """Replay one real log with the default config; a row dict (``reason`` when no figures)."""
     from navd.io.logs import LogFormatError, LogOptions, read_log
@@ -464,15 +491,7 @@ def score_log(spec: RealLog) -> dict[str, Any]:
     start = (spec.flight_from_s if spec.flight_from_s > 0.0
              else takeoff_s(data.imu_t_us[1:], rates) + (data.imu_t_us[1] - t0) * 1e-6)
     rec["flight_from_s"] = start
-    # the reference at each solution time; angles unwrapped so that rolls through 180 deg
-    # interpolate the short way, and only where a reference sample is within 0.1 s
-    rt = ref.t_us.astype(np.float64)
-    idx = np.clip(np.searchsorted(ref.t_us, t_us), 1, len(ref) - 1)
-    near = np.minimum(np.abs(ref.t_us[idx] - t_us), np.abs(ref.t_us[idx - 1] - t_us)) <= 100_000
-    err = np.empty((len(t_us), 2))
-    for j, ang in enumerate((ref.roll_rad, ref.pitch_rad)):
-        r = np.interp(t_us.astype(np.float64), rt, np.unwrap(ang))
-        err[:, j] = (a[:, 1 + j] - r + math.pi) % (2 * math.pi) - math.pi
+    err, near = reference_errors(t_us, a[:, 1:3], (ref.t_us, ref.roll_rad, ref.pitch_rad))
     fly = near & ((t_us - t0) * 1e-6 >= start)
     e = err[fly] * RAD2DEG
     sd = a[fly, 3:5] * RAD2DEG
