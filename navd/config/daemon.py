@@ -105,6 +105,10 @@ class MavlinkSection:
     max_datagram: int = _f(16384, "bytes")
     signing_key_file: str = _f("")  # MAVLink 2 signing key (32 raw bytes or 64 hex); "" = off
     accept_unsigned: bool = _f(False)  # with a key: also take unsigned (and MAVLink 1) frames
+    # lock IMU / GNSS / polarization input each onto the first source that delivers it
+    # (navd.io.source_lock); another takes over after the locked one is silent for relock
+    source_lock: bool = _f(True)
+    relock: float = _f(5.0, "s")
 
     def validate(self) -> None:
         s = "mavlink"
@@ -140,6 +144,7 @@ class MavlinkSection:
         check(self.raw_gyro >= 0.0 and self.raw_accel >= 0.0, s,
               "raw_*_per_lsb", "a scale >= 0 (0 = RAW_IMU not usable)")
         check(self.uere > 0.0, s, "uere_m", "a number of metres > 0")
+        check(self.relock > 0.0, s, "relock_s", "a number of seconds > 0")
         check(self.max_datagram >= 280, s, "max_datagram_bytes",
               "a byte count >= 280 (the largest MAVLink frame)")
         if self.signing_key_file:
@@ -197,6 +202,8 @@ class DronecanSection:
     max_imu_gap: float = _f(100.0, "ms")
     transfer_timeout: float = _f(100.0, "ms")  # unfinished multi-frame transfers evicted
     use_receive_time: bool = _f(False)
+    source_lock: bool = _f(True)  # as [mavlink]: one node per kind of input
+    relock: float = _f(5.0, "s")
 
     def validate(self) -> None:
         s = "dronecan"
@@ -210,6 +217,7 @@ class DronecanSection:
         check(self.nominal_imu_rate >= 0.0, s, "nominal_imu_rate_hz", "a rate in Hz >= 0")
         check(self.max_imu_gap > 0.0, s, "max_imu_gap_ms", "a number of ms > 0")
         check(self.transfer_timeout > 0.0, s, "transfer_timeout_ms", "a number of ms > 0")
+        check(self.relock > 0.0, s, "relock_s", "a number of seconds > 0")
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,7 @@ def mavlink_input_config(m: MavlinkSection, limits: Limits | None = None, *,
         signing_key=load_signing_key(m.signing_key_file) if m.signing_key_file else None,
         accept_unsigned=m.accept_unsigned,
         warn_interval_s=warn_interval_s,
+        relock_s=m.relock if m.source_lock else None,
     )
 
 
@@ -60,6 +61,7 @@ def dronecan_bus_config(d: DronecanSection, limits: Limits | None = None, *,
         max_imu_gap_s=d.max_imu_gap,
         use_receive_time=d.use_receive_time,
         warn_interval_s=warn_interval_s,
+        relock_s=d.relock if d.source_lock else None,
     )
 
 

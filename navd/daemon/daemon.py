@@ -644,6 +644,7 @@ class Daemon:
             "t_us": self.est.t_us,
             "estimator": {**self.est.status(), **dov_status(self.est)},
             "inputs": self.sources.counters(),
+            "source_lock": self.sources.locks(),
             "outputs": {s.name: s.counters() for s in self.sinks},
             "queue": {"capacity": self.queue.maxsize, "size": self.queue.qsize(),
                       "high_water": self.queue.high_water, "drops": self.queue.drops},

@@ -24,7 +24,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from typing import ClassVar, Generic, Protocol, TypeVar
+from typing import Any, ClassVar, Generic, Protocol, TypeVar
 
 from navd.config.daemon import DaemonConfig
 from navd.core.plausible import Limits
@@ -148,6 +148,11 @@ class Input(Protocol):
         """The decoder's counters; None before :meth:`open` has made a decoder."""
         ...
 
+    def lock_status(self) -> dict[str, Any] | None:
+        """Which source each kind of input is locked to (navd.io.source_lock); None when
+        not locking."""
+        ...
+
     def close(self) -> None:
         """Close the link (also the send side of a link a sink shares)."""
         ...
@@ -164,6 +169,10 @@ class _DecodingInput(Generic[DecoderT, LinkT]):
 
     def counters(self) -> dict[str, int] | None:
         return self.decoder.counters.snapshot() if self.decoder is not None else None
+
+    def lock_status(self) -> dict[str, Any] | None:
+        lock = self.decoder.source_lock if self.decoder is not None else None
+        return lock.status() if lock is not None else None
 
 
 class MavlinkInput(_DecodingInput[MavlinkDecoder, MavlinkLink]):
@@ -297,6 +306,15 @@ class Sources:
             c = inp.counters()
             if c is not None:
                 out[name] = c
+        return out
+
+    def locks(self) -> dict[str, dict[str, Any]]:
+        """Per input kind, the source lock's state (kinds that lock and saw input)."""
+        out: dict[str, dict[str, Any]] = {}
+        for name, inp in self.inputs.items():
+            st = inp.lock_status()
+            if st:
+                out[name] = st
         return out
 
     def close(self) -> None:

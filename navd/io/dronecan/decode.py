@@ -53,6 +53,7 @@ from navd.io.common import (
 )
 from navd.io.dronecan.transfer import TransferReassembler, payload_len
 from navd.io.pol_wire import reading_to_sample
+from navd.io.source_lock import SourceLock
 from navd.types import FixType, GnssSample, ImuSample, PolSample
 from navd.units import DEG
 
@@ -120,6 +121,9 @@ class DronecanConfig:
     kernel_filters: bool = True
     priority: int = 16
     warn_interval_s: float = 5.0  # at most one log line per rejection reason per interval
+    # lock each kind of input onto the first node that delivers it (navd.io.source_lock);
+    # None: every allowed node is used
+    relock_s: float | None = None
     limits: Limits = field(default_factory=Limits)
 
     def __post_init__(self) -> None:
@@ -131,6 +135,8 @@ class DronecanConfig:
             raise ValueError("transfer_timeout_s must be > 0")
         if self.nominal_imu_rate_hz is not None and not self.nominal_imu_rate_hz > 0.0:
             raise ValueError("nominal_imu_rate_hz must be > 0")
+        if self.relock_s is not None and not self.relock_s > 0.0:
+            raise ValueError("relock_s must be > 0")
 
 
 class RawImuFields(NamedTuple):
@@ -181,6 +187,8 @@ class DronecanDecoder(DecoderBase[DronecanConfig]):
         )
         self._last_fix_t_us: dict[int, int] = {}
         self._last_pol_t_us: dict[int, int] = {}
+        self.source_lock = (SourceLock(cfg.relock_s, self._reject, lambda n: f"node {n}")
+                            if cfg.relock_s is not None else None)
 
     @property
     def pending(self) -> int:
@@ -255,6 +263,9 @@ class DronecanDecoder(DecoderBase[DronecanConfig]):
         if dtid == POL_DTID:
             return self._polarization(src, recv_t_us, p)
         fix = self._fix2(recv_t_us, p)
+        lock = self.source_lock
+        if fix is not None and lock is not None and not lock.admit("gnss", src, recv_t_us):
+            return None
         if fix is not None:
             # Redundant interfaces deliver the same transfer twice.
             if self._last_fix_t_us.get(src) == fix.t_us:
@@ -274,6 +285,9 @@ class DronecanDecoder(DecoderBase[DronecanConfig]):
             return None
         if self._last_pol_t_us.get(src) == out.t_us:
             self.counters.inc("pol_repeat")  # the same transfer over redundant interfaces
+            return None
+        lock = self.source_lock
+        if lock is not None and not lock.admit("pol", src, recv_t_us):
             return None
         self._last_pol_t_us[src] = out.t_us
         return out
@@ -299,6 +313,9 @@ class DronecanDecoder(DecoderBase[DronecanConfig]):
             if reason is not None:
                 self._reject(reason, "integrals %s %s over %r s", dth, dvl, interval)
                 return None
+            if not self._lock_imu(src, recv_t_us, (dth[0] * k, dth[1] * k, dth[2] * k),
+                                  (dvl[0] * k, dvl[1] * k, dvl[2] * k)):
+                return None
             if self._imu.last_time(key) == t_us:
                 # Same transfer again (redundant interfaces): integrating it twice would
                 # double the motion.
@@ -312,7 +329,20 @@ class DronecanDecoder(DecoderBase[DronecanConfig]):
         if reason is not None:
             self._reject(reason, "gyro=%s accel=%s", (gx, gy, gz), (ax, ay, az))
             return None
+        if not self._lock_imu(src, recv_t_us, (gx, gy, gz), (ax, ay, az)):
+            return None
         return self._imu.push(key, t_us, (gx, gy, gz), (ax, ay, az))
+
+    def _lock_imu(self, src: int, recv_t_us: int, gyro: tuple[float, float, float],
+                  accel: tuple[float, float, float]) -> bool:
+        """Whether the IMU lock lets node ``src`` feed the estimator; a refused node's
+        rates (rad/s) and specific force (m/s^2) are still compared with the locked one's."""
+        lock = self.source_lock
+        if lock is None:
+            return True
+        used = lock.admit("imu", src, recv_t_us)
+        lock.imu_agreement.add(used, src, recv_t_us, gyro, accel)
+        return used
 
     def _accuracy(self, cov: list[float]) -> tuple[float, float, float] | None:
         """(h_acc, v_acc, vel_acc) 1-sigma from Fix2 covariance; None if unusable."""

@@ -58,6 +58,7 @@ from navd.io.mavlink.wire import (
     payload_fields,
     v1_lengths_table,
 )
+from navd.io.source_lock import SourceLock
 from navd.types import FixType, GnssSample, ImuSample, PolSample
 from navd.units import DEG
 from navd.units import G0 as G0_MPS2
@@ -129,6 +130,9 @@ class MavlinkInputConfig:
         frames with a bad or replayed signature are refused (:mod:`.signing`), and
         unsigned frames too unless ``accept_unsigned``.
     warn_interval_s: at most one log line per rejection reason per interval.
+    relock_s: lock IMU, GNSS and polarization input each onto the first (sysid, compid)
+        that delivers it and refuse the others until the locked one has been silent this
+        long (:mod:`navd.io.source_lock`); None: every allowed source is used.
     """
 
     imu_messages: frozenset[str] = frozenset({"HIGHRES_IMU"})
@@ -152,6 +156,7 @@ class MavlinkInputConfig:
     signing_key: bytes | None = field(default=None, repr=False)
     accept_unsigned: bool = False
     warn_interval_s: float = 5.0
+    relock_s: float | None = None
     limits: Limits = field(default_factory=Limits)
 
     def __post_init__(self) -> None:
@@ -168,6 +173,15 @@ class MavlinkInputConfig:
             raise ValueError(f"signing_key must have {KEY_LEN} bytes")
         if not self.warn_interval_s >= 0.0:
             raise ValueError("warn_interval_s must be >= 0")
+        if self.relock_s is not None and not self.relock_s > 0.0:
+            raise ValueError("relock_s must be > 0")
+
+
+def _source_text(src: object) -> str:
+    """(sysid, compid) in the log's words."""
+    if isinstance(src, tuple) and len(src) == 2:
+        return f"sysid={src[0]} compid={src[1]}"
+    return str(src)
 
 
 def _dop(dop_x100: int) -> float | None:
@@ -243,6 +257,9 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         self._sources: dict[tuple[int, int], _Source] = {}
         self._last_gnss_t_us: dict[tuple[int, int, int], int] = {}
         self._handlers: dict[int, tuple[Layout, Handler]] = {}
+        self.source_lock = (SourceLock(cfg.relock_s, self._reject, _source_text)
+                            if cfg.relock_s is not None else None)
+        self._recv_us = 0  # receive time of the frame being decoded (the lock's clock)
         for name in cfg.imu_messages | cfg.gnss_messages:
             msgid: int = getattr(mavlink, f"MAVLINK_MSG_ID_{name}")
             self._handlers[msgid] = (LAYOUTS[msgid], getattr(self, f"_on_{name.lower()}"))
@@ -324,6 +341,7 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
             self._reject("not_allowed", "source sysid=%d compid=%d", *src)
             return None
         layout, handler = h
+        self._recv_us = recv_t_us
         try:
             sample = handler(src, payload_fields(layout, f.payload), recv_t_us)
         except (TypeError, ValueError, OverflowError) as exc:
@@ -332,6 +350,9 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         if sample is None:
             return None
         if isinstance(sample, GnssSample):
+            lock = self.source_lock
+            if lock is not None and not lock.admit("gnss", src, recv_t_us):
+                return None
             # ArduPilot streams GPS_RAW_INT faster than many receivers update and repeats
             # the last fix, time stamp included; a repeat is no new information.
             key = (src[0], src[1], f.msgid)
@@ -394,6 +415,9 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         # the same time checks as every other sample (pol_wire already chose the clock)
         if self._stamp(s.t_us, recv_t_us, "pol") is None:
             return None
+        lock = self.source_lock
+        if lock is not None and not lock.admit("pol", src, recv_t_us):
+            return None
         self.counters.inc("pol_ok")
         self._accepted(src, f.seq)
         return s
@@ -415,6 +439,13 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
             # gap by zero-order hold instead of losing the interval.
             self._reject(reason, "gyro=%s accel=%s", gyro, accel)
             return None
+        lock = self.source_lock
+        if lock is not None:
+            src, now = key[:2], self._recv_us
+            used = lock.admit("imu", src, now)
+            lock.imu_agreement.add(used, src, now, gyro, accel)
+            if not used:
+                return None
         return self._imu.push(key, t_us, gyro, accel)
 
     def _imu_id_ok(self, imu_id: int) -> bool:
