@@ -17,6 +17,7 @@ from navd.config.estimator import (
     ImuSection,
     InitSection,
     MctlsSection,
+    YawBankSection,
 )
 from navd.config.load import (
     ConfigError,
@@ -41,6 +42,7 @@ __all__ = [
     "MctlsSection",
     "NavConfig",
     "PolarizationSection",
+    "YawBankSection",
     "apply_overrides",
     "build_section",
     "load_config",

@@ -110,6 +110,51 @@ class MctlsSection:
 
 
 @dataclass(frozen=True)
+class YawBankSection:
+    """Heading from motion (navd/core/aiding/yaw_bank.py, docs/design.md §4.1)."""
+
+    # "auto": on for the multirotor and fixed_wing profiles (no usable course), off for ground;
+    # "off" by default until it beats the robustness baseline with uncalibrated gyros
+    enabled: str = _f("off", choices=("auto", "on", "off"))
+    members: int = _f(8)
+    # unmodelled horizontal specific force per member (tilt error x g, vibration, m/s^2)
+    accel_noise: float = _f(0.5, "mps2")
+    # yaw offset random walk: covers the main filter's own yaw drift between GNSS epochs
+    yaw_noise: float = _f(0.3, "deg_per_sqrt_s")
+    # gyro scale-factor uncertainty: yaw variance grows by (this)^2 per radian turned
+    gyro_scale_sd: float = _f(1.0, "pct")
+    # weights change (and the bank can become trusted) only while the low-passed horizontal
+    # specific force is at least this: without it yaw is unobservable
+    min_accel: float = _f(0.5, "mps2")
+    excitation_tau: float = _f(0.5, "s")
+    # the bank is trusted once its composite sigma stayed below trust_sd and its estimate
+    # within agree of itself for agree_time
+    trust_sd: float = _f(10.0, "deg")
+    agree: float = _f(5.0, "deg")
+    agree_time: float = _f(3.0, "s")
+    # trial: the main heading is set from the bank and kept only if the velocity NIS of the
+    # next trial_epochs excited GNSS epochs is consistent (chi-square at filter.gate_prob)
+    trial_epochs: int = _f(5)
+    trial_timeout: float = _f(30.0, "s")
+    # the main filter's heading sigma at alignment is at least this
+    aligned_sd: float = _f(4.0, "deg")
+    # per-epoch NIS cap in the weight update (an outlier epoch costs no member more than
+    # this) and the floor of a member's log weight below the best (nats): no hypothesis is
+    # ever lost for good
+    # while unaligned, GNSS updates leave the main yaw alone (Schmidt consider state)
+    hold_unaligned: bool = _f(True)
+    nis_cap: float = _f(16.0)
+    weight_floor: float = _f(20.0)
+
+    def validate(self) -> None:
+        check(2 <= self.members <= 16, "yaw_bank", "members", "2..16")
+        check(self.trust_sd > 0.0 and self.agree > 0.0, "yaw_bank", "trust_sd_deg/agree_deg",
+              "> 0")
+        check(self.trial_epochs >= 1, "yaw_bank", "trial_epochs", ">= 1")
+        check(self.excitation_tau > 0.0, "yaw_bank", "excitation_tau_s", "> 0")
+
+
+@dataclass(frozen=True)
 class EstimatorConfig:
     """The estimator's configuration in SI units."""
 
@@ -119,6 +164,7 @@ class EstimatorConfig:
     gnss: GnssSection = field(default_factory=GnssSection)
     heading: HeadingSection = field(default_factory=HeadingSection)
     mctls: MctlsSection = field(default_factory=MctlsSection)
+    yaw_bank: YawBankSection = field(default_factory=YawBankSection)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EstimatorConfig:

@@ -98,6 +98,8 @@ _UNITS: dict[str, float] = {
     "bytes": 1.0,
     "deg_per_h": DEG / 3600.0,
     "deg_per_sqrt_h": DEG / 60.0,  # deg/sqrt(h) -> rad/sqrt(s)
+    "deg_per_sqrt_s": DEG,  # deg/sqrt(s) -> rad/sqrt(s)
+    "pct": 0.01,
     "mps_per_sqrt_s": 1.0,
     "mps_per_sqrt_h": 1.0 / 60.0,
     "deg_per_h_per_sqrt_h": DEG / 3600.0 / 60.0,  # (deg/h)/sqrt(h) -> rad/s/sqrt(s)

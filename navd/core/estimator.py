@@ -43,7 +43,10 @@ from navd.core.aiding.base import (
 )
 from navd.core.aiding.dov import DovAid, DovField
 from navd.core.aiding.gnss import GnssAiding
+from navd.core.aiding.gnss_heading import course_may_align
 from navd.core.aiding.gyro_rest import GyroRest, rest_push
+from navd.core.aiding.yaw_bank import YawBank, bank_enabled
+from navd.core.aiding.yaw_bank_kernels import bank_imu, main_yaw, wrap
 from navd.core.earth import geodetic_to_ecef, radii
 from navd.core.output import attitude_outputs
 from navd.core.rotation import euler_to_mat_into
@@ -146,6 +149,11 @@ class Estimator:
         self._consumers: dict[type, tuple[Aid, ...]] = {
             t: tuple(a for a in self.aids if a.consumes is t) for t in (GnssSample, PolSample)}
 
+        # heading from motion (multirotor, fixed-wing): not an Aid, it runs beside the GNSS
+        # aid, before and after its update (core/aiding/yaw_bank.py)
+        self.yaw_bank: YawBank | None = YawBank(c) if bank_enabled(c) else None
+        self._bank_buf = self.yaw_bank.buf if self.yaw_bank is not None else None
+
         self.counters: defaultdict[str, int] = defaultdict(int)
         self.heading_aligned = False
         # times the state started over (sensor clock jump, restart()): front ends watch it to
@@ -178,6 +186,8 @@ class Estimator:
         for aid in self.aids:
             aid.reset()
         self.gyro_rest.reset()
+        if self.yaw_bank is not None:
+            self.yaw_bank.reset()
 
     def restart(self, reason: str) -> None:
         """Count ``reason`` and start over (wait for levelling and a fix): for an aid whose
@@ -210,7 +220,12 @@ class Estimator:
                 return self._gnss_start(sample)
             if not self._gnss_in_time(sample):
                 return False
+            yb = self.yaw_bank
+            if yb is not None:
+                yb.before_fix(self, sample)
             if self._dispatch(sample):
+                if yb is not None:
+                    yb.after_fix(self, sample)
                 self._last_gnss_t_us = sample.t_us
                 return True
             return False
@@ -228,8 +243,13 @@ class Estimator:
 
     def _dispatch(self, sample: GnssSample | PolSample) -> bool:
         advanced = False
+        yb = self.yaw_bank
+        y0 = main_yaw(self._buf) if yb is not None else 0.0
         for aid in self._consumers[type(sample)]:
             advanced = aid.fuse(self, sample) or advanced
+        if yb is not None and self._stage == _NAV:
+            # the bank's hypotheses are offsets from the main yaw: keep them where they were
+            yb.main_turned(wrap(main_yaw(self._buf) - y0))
         return advanced
 
     def _innov_begin(self, first: int, stop: int, t_us: int) -> None:
@@ -300,6 +320,11 @@ class Estimator:
         st.history_restore(self._buf)
 
     @property
+    def imu_dt_us(self) -> int:
+        """The last IMU sample's interval, us (0 before the first step)."""
+        return self._imu_dt_us
+
+    @property
     def buf(self) -> npt.NDArray[np.float64]:
         """The state buffer (:mod:`navd.core.state`), for the compiled row kernels."""
         return self._buf
@@ -356,6 +381,8 @@ class Estimator:
             return False
         st.imu_step(self._buf, float(s.t_us), s.dtheta_x, s.dtheta_y, s.dtheta_z, s.dvel_x,
                     s.dvel_y, s.dvel_z, dt, self._coning, self._cov_interval)
+        if self._bank_buf is not None:
+            bank_imu(self._bank_buf, self._buf, float(s.t_us), dt)
         self._imu_dt_us = s.dt_us
         return True
 
@@ -409,7 +436,7 @@ class Estimator:
             yaw = c.init.heading
             self.heading_aligned = True
         elif (src == "gnss_course" and speed >= c.heading.align_speed
-              and c.filter.profile != "multirotor"):
+              and course_may_align(c, self.yaw_bank is not None)):
             yaw = math.atan2(fix.vel_e, fix.vel_n)
             self.heading_aligned = True
             self.counters["heading_aligned_from_course"] += 1
@@ -451,6 +478,8 @@ class Estimator:
         P[12, 12] = P[13, 13] = P[14, 14] = c.imu.accel_bias_sd**2
         self._stage = _NAV
         self.counters["nav_start"] += 1
+        if self.yaw_bank is not None:
+            self.yaw_bank.start(self)
 
     def _set_pos_var(self, sd_m: float) -> None:
         r_m, r_n = radii(self.pos[0])
@@ -560,7 +589,8 @@ class Estimator:
         course, resets after a velocity lock-out (they widen and re-seed attitude), and
         restarts."""
         c = self.counters
-        return c.get("heading_reset", 0) + c.get("reset_lockout_vel", 0) + max(self.restarts, 0)
+        return (c.get("heading_reset", 0) + c.get("reset_lockout_vel", 0)
+                + c.get("yaw_bank_realigned", 0) + max(self.restarts, 0))
 
     @property
     def heading_held(self) -> bool:
@@ -595,6 +625,8 @@ class Estimator:
         }
         for aid in self.aids:
             out.update(aid.status(self))
+        if self.yaw_bank is not None:
+            out.update(self.yaw_bank.status(self))
         out.update({
             # sensor-time age of the last GNSS fix used; None before the first (absent GNSS
             # shows as a growing age: the INS is coasting)

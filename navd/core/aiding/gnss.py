@@ -115,7 +115,10 @@ class GnssAiding:
             return False
         self._absurd_in_row = 0
         has_vel_h = math.isfinite(g.vel_n) and math.isfinite(g.vel_e)
-        self.hold = _YAW if has_vel_h and self._heading_hold(est, g) else -1
+        yb = est.yaw_bank
+        self.hold = (_YAW if has_vel_h and (self._heading_hold(est, g)
+                                            or (yb is not None and yb.holds_heading(est)))
+                     else -1)
         if has_vel_h:
             self.course.note_not_tried(est, g)
 

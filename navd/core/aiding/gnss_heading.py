@@ -105,6 +105,16 @@ def course_row(H: Arr, z: Arr, R: Arr, row: int, mat_nb: Arr, rate_b: Arr, lever
         R[row, row] = sd_h * sd_h / vh2 + sd_beta * sd_beta
 
 
+def course_may_align(cfg: EstimatorConfig, bank: bool) -> bool:
+    """Whether a GNSS course may set an unknown heading: ground vehicles, and fixed-wing with
+    a crab allowance (``[heading] crab_sd_deg`` > 0) or without a yaw bank (``bank``); a
+    multirotor's course is never its heading and a fixed-wing's differs by the crab angle (up
+    to +-30 deg in wind), which the yaw bank resolves from turns instead
+    (:mod:`navd.core.aiding.yaw_bank`)."""
+    p = cfg.filter.profile
+    return p == "ground" or (p == "fixed_wing" and (cfg.heading.crab_sd > 0.0 or not bank))
+
+
 def course_sd(speed_sd_mps: float, speed_h_mps: float) -> float:
     """1-sigma of the course from a per-axis speed accuracy, rad (sigma_v / |v_h|)."""
     return speed_sd_mps / speed_h_mps
@@ -222,7 +232,7 @@ class CourseHeading:
         use_course = self.usable(est, g)
         if (not use_course and not est.heading_aligned
                 and cfg.init.heading_source == "gnss_course"
-                and cfg.filter.profile != "multirotor"
+                and course_may_align(cfg, est.yaw_bank is not None)
                 and math.hypot(g.vel_n, g.vel_e) >= cfg.heading.align_speed):
             # Without course updates the first fast course still beats a yaw of zero as a
             # starting point (crab makes it coarse: keep the yaw variance wide).
@@ -318,8 +328,10 @@ class CourseHeading:
             rec[0] = (yaw - math.atan2(g.vel_e, g.vel_n) + math.pi) % (2.0 * math.pi) - math.pi
 
     def check_observed(self, est: Estimator) -> None:
-        """Flag heading aligned once manoeuvres made the yaw observable (sigma small)."""
-        if not est.heading_aligned and est.P[2, 2] < self.cfg.init.aligned_sd**2:
+        """Flag heading aligned once manoeuvres made the yaw observable (sigma small); with a
+        yaw bank, the bank alone decides (a linearised yaw sigma can shrink on a wrong yaw)."""
+        if (est.yaw_bank is None and not est.heading_aligned
+                and est.P[2, 2] < self.cfg.init.aligned_sd**2):
             est.heading_aligned = True
             est.counters["heading_aligned_by_observability"] += 1
 

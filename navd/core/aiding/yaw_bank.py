@@ -1,0 +1,303 @@
+"""Heading from motion: a bank of yaw hypotheses weighted by GNSS velocity (issue 15).
+
+A multirotor's GNSS course says nothing about its heading and a fixed-wing's differs from it
+by the crab angle, but accelerations do: a horizontal specific force seen in the body frame
+and the same acceleration seen by GNSS differ by exactly the yaw.  The bank
+(:mod:`navd.core.aiding.yaw_bank_kernels` has the model) holds ``members`` small EKFs whose
+yaw offsets start evenly spread over the circle; each is driven by the main filter's
+attitude (tilt, and the gyro integrated with its bias estimates) and corrected by GNSS
+horizontal velocity; a Gaussian sum weights them by likelihood.
+
+What it does with that (docs/design.md §4.1), and why:
+
+- weights change only while the horizontal specific force is large enough (``min_accel``):
+  without it every hypothesis explains the data, and noise alone would pick one;
+- the bank is *trusted* only after its composite sigma stayed below ``trust_sd`` and its
+  composite yaw within ``agree`` of itself for ``agree_time`` of excited flight, never on one
+  low-variance epoch (the EKF-GSF failure of PX4 PR #28014, whose variance collapsed onto a
+  wrong yaw within a second);
+- a trusted bank starts a *trial*: the main heading is set from the bank with a sigma of
+  at least ``aligned_sd``, and the heading is declared aligned only if the main filter's own
+  velocity innovations over the next ``trial_epochs`` excited epochs are chi-square
+  consistent; otherwise the heading goes back to unknown and the bank starts over;
+- while the heading is unaligned the main filter's GNSS updates leave its yaw alone
+  (Schmidt consider state, as the heading hold at rest), so a wrong linearised yaw cannot
+  corrupt tilt and biases, nor shrink the yaw sigma into a false "aligned";
+- once aligned, the bank keeps watching: if it stays trusted and disagrees with the main
+  heading beyond 3 sigma of both for ``agree_time``, the heading is reset to the bank, marked
+  unaligned, the gyro-bias sigma widened to the drift seen, and a new trial decides.
+
+Allocation-free in steady state: scalars live in arrays, the kernels are compiled.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+
+from navd.config import EstimatorConfig
+from navd.core.aiding import yaw_bank_kernels as yk
+from navd.core.aiding.base import INNOV_FLAG, INNOV_NIS, INNOV_VEL, NOT_TRIED
+from navd.core.chi2 import chi2_quantile
+from navd.types import GnssSample
+
+if TYPE_CHECKING:
+    from navd.core.estimator import Estimator
+
+Arr = npt.NDArray[np.float64]
+
+SEARCH = 0
+TRIAL = 1
+ALIGNED = 2
+STATE_NAMES = ("search", "trial", "aligned")
+
+_DEFAULT_VEL_ACC = 0.5  # m/s, as the GNSS aid when the receiver gives none
+_TRIAL_PROB = 0.999
+
+# scalar state (self._s)
+_STATE = 0
+_AGREE_T0 = 1  # t_us the present agreement window started (-1: none)
+_AGREE_REF = 2  # composite offset at its start (rad)
+_AGREE_N = 3  # excited epochs in it
+_TRIAL_T0 = 4
+_TRIAL_NIS = 5  # sum of the main filter's velocity NIS over the trial's excited epochs
+_TRIAL_N = 6
+_DIS_T0 = 7  # t_us main and bank started to disagree (-1: they agree)
+_LAST_AGREE_T = 8  # t_us main and bank last agreed
+_RESULT = 9  # last bank_fix result
+_ALIGNED_T = 10  # t_us of the last alignment
+_NS = 11
+
+
+def bank_enabled(cfg: EstimatorConfig) -> bool:
+    """Whether the estimator runs a yaw bank: ``[yaw_bank] enabled``, where "auto" means the
+    profiles without a usable course (multirotor, fixed_wing)."""
+    e = cfg.yaw_bank.enabled
+    return e == "on" or (e == "auto" and cfg.filter.profile in ("multirotor", "fixed_wing"))
+
+
+class YawBank:
+    """The bank and its alignment logic, owned by the estimator (see the module doc)."""
+
+    def __init__(self, cfg: EstimatorConfig) -> None:
+        self.cfg = cfg
+        c = cfg.yaw_bank
+        self.c = c
+        self.n = c.members
+        self.buf = np.zeros(yk.SIZE)
+        self._s = np.zeros(_NS)
+        self._q_v_rate = cfg.imu.accel_vrw ** 2
+        self._q_a = c.accel_noise ** 2
+        self._q_d_rate = c.yaw_noise ** 2
+        self._q_scale = c.gyro_scale_sd ** 2
+        self._d0_sd = math.pi / self.n
+        self._trial_gate = [0.0] + [chi2_quantile(_TRIAL_PROB, 3 * k)
+                                    for k in range(1, c.trial_epochs + 1)]
+        self.reset()
+
+    # ------------------------------------------------------------------ life cycle
+    def reset(self) -> None:
+        yk.bank_reset(self.buf, self.n)
+        s = self._s
+        s[:] = 0.0
+        s[_AGREE_T0] = -1.0
+        s[_DIS_T0] = -1.0
+        s[_LAST_AGREE_T] = -1.0
+        s[_RESULT] = yk.NOT_KEPT
+
+    def start(self, est: Estimator) -> None:
+        """Navigation started: a heading given by config or course is monitored, not
+        searched for."""
+        self.reset()
+        self._s[_STATE] = ALIGNED if est.heading_aligned else SEARCH
+
+    @property
+    def state(self) -> int:
+        return int(self._s[_STATE])
+
+    @property
+    def offset(self) -> float:
+        """Composite yaw minus the main filter's yaw, rad."""
+        return float(self.buf[yk.H_OFF])
+
+    @property
+    def sd(self) -> float:
+        """Composite 1-sigma, rad."""
+        return math.sqrt(max(float(self.buf[yk.H_VAR]), 0.0))
+
+    @property
+    def started(self) -> bool:
+        return bool(self.buf[yk.H_TLAST] >= 0.0)
+
+    def holds_heading(self, est: Estimator) -> bool:
+        """Whether GNSS updates must leave the main yaw alone: unaligned and not in trial."""
+        return self.c.hold_unaligned and not est.heading_aligned and self.state == SEARCH
+
+    # ------------------------------------------------------------------ per sample
+    def imu(self, est: Estimator, t_us: int, dt: float) -> None:
+        yk.bank_imu(self.buf, est.buf, float(t_us), dt)
+
+    def before_fix(self, est: Estimator, g: GnssSample) -> None:
+        """Bring the members to the fix's time and update them (before the main filter's
+        update, whose yaw correction :meth:`main_turned` then accounts for)."""
+        if not (math.isfinite(g.vel_n) and math.isfinite(g.vel_e)):
+            self._s[_RESULT] = yk.NOT_KEPT
+            return
+        sd = (g.vel_acc_mps if g.vel_acc_mps > 0.0 and math.isfinite(g.vel_acc_mps)
+              else _DEFAULT_VEL_ACC)
+        sd = max(sd, self.cfg.gnss.min_vel_sd)
+        c = self.c
+        res = yk.bank_fix(self.buf, est.buf, float(g.t_us), 0.5 * est.imu_dt_us + 1.0,
+                          g.vel_n, g.vel_e, sd, self._q_v_rate, self._q_a, self._q_d_rate,
+                          self._q_scale, c.min_accel, c.excitation_tau, c.nis_cap,
+                          c.weight_floor, self._d0_sd)
+        self._s[_RESULT] = res
+        if res == yk.NOT_KEPT:
+            est.counters["yaw_bank_fix_not_kept"] += 1
+
+    def main_turned(self, d: float) -> None:
+        """The main filter turned its yaw by ``d`` rad (an update or reset)."""
+        if d != 0.0:
+            yk.bank_rotate(self.buf, d)
+            s = self._s
+            s[_AGREE_REF] = yk.wrap(s[_AGREE_REF] - d)
+
+    def after_fix(self, est: Estimator, g: GnssSample) -> None:
+        """After the main filter's update of this epoch: trust, trial, alignment, watch."""
+        s = self._s
+        res = int(s[_RESULT])
+        if res != yk.PREDICTED and res != yk.WEIGHTED:
+            return
+        if est.heading_aligned and s[_STATE] == SEARCH:
+            s[_STATE] = ALIGNED  # aligned by another source (course with crab model)
+        t = float(g.t_us)
+        state = int(s[_STATE])
+        c = self.c
+        off = self.offset
+        sd = self.sd
+        trusted = sd <= c.trust_sd
+        if state == SEARCH:
+            if not trusted:
+                s[_AGREE_T0] = -1.0
+                return
+            if s[_AGREE_T0] < 0.0 or abs(yk.wrap(off - s[_AGREE_REF])) > c.agree:
+                s[_AGREE_T0] = t
+                s[_AGREE_REF] = off
+                s[_AGREE_N] = 0.0
+            if res == yk.WEIGHTED:
+                s[_AGREE_N] += 1.0
+            if ((t - s[_AGREE_T0]) * 1e-6 >= c.agree_time
+                    and s[_AGREE_N] >= c.trial_epochs):
+                self._begin_trial(est, t)
+                est.counters["yaw_bank_trials"] += 1
+            return
+        p22 = float(est.P[2, 2])
+        comb = math.sqrt(max(float(self.buf[yk.H_VAR]), 0.0) + p22)
+        if state == TRIAL:
+            rec = est.innov[INNOV_VEL]
+            if res == yk.WEIGHTED and rec[INNOV_FLAG] != NOT_TRIED:
+                nis = float(rec[INNOV_NIS])
+                s[_TRIAL_NIS] += nis if math.isfinite(nis) else 1e6
+                s[_TRIAL_N] += 1.0
+            k = int(s[_TRIAL_N])
+            if abs(off) > 3.0 * comb + c.agree:
+                self._fail_trial(est, "yaw_bank_trial_failed_bank")
+            elif k >= c.trial_epochs:
+                if s[_TRIAL_NIS] <= self._trial_gate[c.trial_epochs]:
+                    s[_STATE] = ALIGNED
+                    s[_DIS_T0] = -1.0
+                    s[_LAST_AGREE_T] = t
+                    s[_ALIGNED_T] = t
+                    est.heading_aligned = True
+                    est.counters["yaw_bank_aligned"] += 1
+                else:
+                    self._fail_trial(est, "yaw_bank_trial_failed_nis")
+            elif (t - s[_TRIAL_T0]) * 1e-6 > c.trial_timeout:
+                self._fail_trial(est, "yaw_bank_trial_timeout")
+            return
+        # aligned: watch for a main heading that left the bank
+        if abs(off) <= 3.0 * comb:
+            s[_LAST_AGREE_T] = t
+        if trusted and abs(off) > max(3.0 * comb, c.agree):
+            if s[_DIS_T0] < 0.0:
+                s[_DIS_T0] = t
+            elif (t - s[_DIS_T0]) * 1e-6 >= c.agree_time:
+                self._realign(est, t, off)
+        else:
+            s[_DIS_T0] = -1.0
+
+    # ------------------------------------------------------------------ actions
+    def _set_main_yaw(self, est: Estimator, d: float, var: float) -> None:
+        """Turn the main attitude by d (about down), its yaw variance to var, no yaw
+        correlations left (the yaw is new information)."""
+        yk.rotate_main(est.buf, d)
+        yk.bank_rotate(self.buf, d)
+        P = est.P
+        P[2, :] = 0.0
+        P[:, 2] = 0.0
+        P[2, 2] = var
+
+    def _begin_trial(self, est: Estimator, t: float) -> None:
+        s = self._s
+        var = max(float(self.buf[yk.H_VAR]), self.c.aligned_sd ** 2)
+        self._set_main_yaw(est, self.offset, var)
+        s[_STATE] = TRIAL
+        s[_TRIAL_T0] = t
+        s[_TRIAL_NIS] = 0.0
+        s[_TRIAL_N] = 0.0
+        s[_AGREE_T0] = -1.0
+
+    def _fail_trial(self, est: Estimator, reason: str) -> None:
+        s = self._s
+        est.counters[reason] += 1
+        est.heading_aligned = False
+        P = est.P
+        P[2, :] = 0.0
+        P[:, 2] = 0.0
+        P[2, 2] = (math.pi / 2.0) ** 2
+        s[_STATE] = SEARCH
+        s[_AGREE_T0] = -1.0
+        # the bank's confident answer did not survive the main filter: let it start over
+        # from its present members with equal weights
+        for i in range(self.n):
+            o = yk.MEM + i * yk.MW
+            self.buf[o + yk.M_LW] = 0.0
+            self.buf[o + yk.M_W] = 1.0 / self.n
+        yk.composite(self.buf)
+
+    def _realign(self, est: Estimator, t: float, off: float) -> None:
+        """The main heading drifted away from a trusted bank: its model was optimistic.
+        Reset it to the bank, widen the gyro-bias sigma to the drift rate seen, re-try."""
+        s = self._s
+        since = max((t - max(s[_LAST_AGREE_T], s[_ALIGNED_T])) * 1e-6, 1.0)
+        rate = abs(off) / since
+        P = est.P
+        for i in range(9, 12):
+            P[i, i] = max(float(P[i, i]), rate * rate)
+        est.heading_aligned = False
+        est.counters["yaw_bank_realigned"] += 1
+        self._begin_trial(est, t)
+        s[_DIS_T0] = -1.0
+
+    # ------------------------------------------------------------------ status
+    def status(self, est: Estimator) -> dict[str, object]:
+        b = self.buf
+        yaw = math.atan2(float(est.mat_nb[1, 0]), float(est.mat_nb[0, 0]))
+        s = self._s
+        agree = ((est.t_us - s[_AGREE_T0]) * 1e-6
+                 if s[_AGREE_T0] >= 0.0 and self.state == SEARCH else 0.0)
+        return {"yaw_bank": {
+            "state": STATE_NAMES[self.state] if self.started else "waiting: no GNSS velocity",
+            "yaw_deg": round(math.degrees(yk.wrap(yaw + self.offset)), 2),
+            "sd_deg": round(math.degrees(self.sd), 2),
+            "offset_deg": round(math.degrees(self.offset), 2),
+            "excitation_mps2": round(float(b[yk.H_EXC]), 3),
+            "agree_s": round(agree, 2),
+            "members_yaw_deg": [round(math.degrees(yk.wrap(yaw + float(b[yk.MEM + i * yk.MW
+                                                                            + 2]))), 1)
+                                for i in range(self.n)],
+            "weights": [round(float(b[yk.MEM + i * yk.MW + yk.M_W]), 4) for i in range(self.n)],
+        }}

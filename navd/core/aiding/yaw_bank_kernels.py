@@ -1,0 +1,449 @@
+"""Compiled kernels of the yaw bank (:mod:`navd.core.aiding.yaw_bank`), allocation-free.
+
+The bank is a Gaussian sum of small EKFs, one per yaw hypothesis.  Member i assumes that
+the true attitude is ``Rz(d_i) C_hat``: the main filter's attitude turned about the local
+down axis by its yaw offset d_i (the main filter supplies the tilt and integrates the gyro
+with its bias estimates, so a member needs no attitude of its own).  Its state is
+
+    x_i = [vN, vE, d_i]      NED horizontal velocity (m/s), yaw offset (rad)
+
+Between two GNSS epochs the main filter's specific-force increments, rotated with C_hat,
+sum to ``a = sum C_hat dv_b`` (horizontal NED of the main frame, m/s; gravity and Coriolis
+have no or a negligible horizontal part).  Member i predicts
+
+    v_i <- v_i + Rz2(d_i) a,          F = [[1, 0, -aE_i], [0, 1, aN_i], [0, 0, 1]]
+
+with ``(aN_i, aE_i) = Rz2(d_i) a`` and observes the GNSS horizontal velocity at the antenna,
+
+    h_i(x) = v_i + Rz2(d_i) u,   H = [[1, 0, -uE_i], [0, 1, uN_i]],   u = (C_hat (w x l))_NE
+
+The members' weights follow the Gaussian likelihood of their innovations (log domain, capped
+NIS per epoch, floored relative to the best so that no hypothesis is lost for good), and only
+while the horizontal specific force is large enough to make yaw observable.
+
+Buffer layout (float64, :data:`SIZE`): a header, :data:`NMAX` member blocks and a ring of
+cumulative increments that lets a fix stamped in the past be matched at its own time.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from navd.core import state as st
+from navd.core._jit import jit
+
+Arr = npt.NDArray[np.float64]
+
+NMAX = 16  # most members a bank can have
+
+# header
+H_N = 0  # members in use
+H_TLAST = 1  # t_us of the last fix the members were brought to (-1: not started)
+H_CUMN = 2  # ring cumulative sums at that time: north, east (m/s), |yaw turned| (rad)
+H_CUME = 3
+H_CUMY = 4
+H_OFF = 5  # composite yaw offset (rad): the main yaw should turn by this much
+H_VAR = 6  # composite variance (rad^2), spread of the members included
+H_EXC = 7  # excitation: |low-passed horizontal specific force| less its noise (m/s^2)
+H_RI = 8  # ring index of the newest entry (-1: empty)
+H_ACCN = 9  # last interval's mean horizontal specific force, main frame N, E (m/s^2)
+H_ACCE = 10
+H_NIS = 11  # weight-averaged NIS of the last update
+H_WUPD = 12  # 1 when the last update also updated the weights
+H_DT = 13  # last interval (s)
+H_LPN = 14  # low-passed horizontal specific force, main frame N, E (m/s^2)
+H_LPE = 15
+MEM = 16
+MW = 16  # per member: vN, vE, d, P (3x3 row-major), log weight, weight, NIS
+M_P = 3
+M_LW = 12
+M_W = 13
+M_NIS = 14
+RING = MEM + NMAX * MW
+RING_LEN = 512
+RING_W = 4  # t_us, cumulative N, E (m/s), cumulative |yaw turned| (rad)
+SIZE = RING + RING_LEN * RING_W
+
+# results of bank_fix
+STARTED = 0
+PREDICTED = 1  # members updated, weights left alone (not enough excitation)
+WEIGHTED = 2  # members and weights updated
+NOT_KEPT = -1  # the fix's time is older than the ring (or the ring is empty)
+NO_TIME = -2  # no time passed since the last fix
+
+
+@jit
+def wrap(a: float) -> float:
+    """Angle to [-pi, pi)."""
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@jit
+def bank_reset(bb: Arr, n: int) -> None:
+    """Forget everything; ``n`` members from the next fix on."""
+    for i in range(SIZE):
+        bb[i] = 0.0
+    bb[H_N] = float(n)
+    bb[H_TLAST] = -1.0
+    bb[H_RI] = -1.0
+    for i in range(RING_LEN):
+        bb[RING + i * RING_W] = -1.0
+
+
+@jit
+def bank_imu(bb: Arr, sb: Arr, t_us: float, dt: float) -> None:
+    """After the main filter's IMU step: add its compensated velocity increment, rotated
+    with its attitude (horizontal NED of the main frame), and the yaw it turned, to the ring."""
+    m = st.MAT
+    dv0 = sb[st.INC + 3]
+    dv1 = sb[st.INC + 4]
+    dv2 = sb[st.INC + 5]
+    dn = sb[m] * dv0 + sb[m + 1] * dv1 + sb[m + 2] * dv2
+    de = sb[m + 3] * dv0 + sb[m + 4] * dv1 + sb[m + 5] * dv2
+    r = st.RATE
+    wd = sb[m + 6] * sb[r] + sb[m + 7] * sb[r + 1] + sb[m + 8] * sb[r + 2]
+    i = int(bb[H_RI])
+    if i < 0:
+        cn = 0.0
+        ce = 0.0
+        cy = 0.0
+    else:
+        o = RING + i * RING_W
+        cn = bb[o + 1]
+        ce = bb[o + 2]
+        cy = bb[o + 3]
+    i += 1
+    if i >= RING_LEN:
+        i = 0
+    bb[H_RI] = float(i)
+    o = RING + i * RING_W
+    bb[o] = t_us
+    bb[o + 1] = cn + dn
+    bb[o + 2] = ce + de
+    bb[o + 3] = cy + abs(wd) * dt
+
+
+@jit
+def ring_at(bb: Arr, t_us: float, tol_us: float) -> int:
+    """Offset of the newest ring entry stamped at or before ``t_us + tol_us`` (-1: none)."""
+    i = int(bb[H_RI])
+    if i < 0:
+        return -1
+    for _ in range(RING_LEN):
+        o = RING + i * RING_W
+        t = bb[o]
+        if t < 0.0:
+            return -1
+        if t <= t_us + tol_us:
+            return o
+        i -= 1
+        if i < 0:
+            i = RING_LEN - 1
+    return -1
+
+
+@jit
+def composite(bb: Arr) -> None:
+    """Weighted circular mean of the offsets and the Gaussian-sum variance about it."""
+    n = int(bb[H_N])
+    sn = 0.0
+    cs = 0.0
+    for i in range(n):
+        o = MEM + i * MW
+        w = bb[o + M_W]
+        sn += w * math.sin(bb[o + 2])
+        cs += w * math.cos(bb[o + 2])
+    mean = math.atan2(sn, cs)
+    var = 0.0
+    for i in range(n):
+        o = MEM + i * MW
+        d = wrap(bb[o + 2] - mean)
+        var += bb[o + M_W] * (bb[o + M_P + 8] + d * d)
+    bb[H_OFF] = mean
+    bb[H_VAR] = var
+
+
+@jit
+def member_f(x: Arr, a_n: float, a_e: float, out: Arr) -> None:
+    """The members' prediction f(x) = [v + Rz2(d) a, d] (for the Jacobian test)."""
+    c = math.cos(x[2])
+    s = math.sin(x[2])
+    out[0] = x[0] + c * a_n - s * a_e
+    out[1] = x[1] + s * a_n + c * a_e
+    out[2] = x[2]
+
+
+@jit
+def member_h(x: Arr, u_n: float, u_e: float, out: Arr) -> None:
+    """The members' measurement h(x) = v + Rz2(d) u (for the Jacobian test)."""
+    c = math.cos(x[2])
+    s = math.sin(x[2])
+    out[0] = x[0] + c * u_n - s * u_e
+    out[1] = x[1] + s * u_n + c * u_e
+
+
+@jit
+def predict_member(bb: Arr, o: int, a_n: float, a_e: float, q_v: float, q_d: float) -> None:
+    """Member at offset ``o``: velocity + Rz2(d) a; P <- F P F^T + diag(q_v, q_v, q_d)."""
+    c = math.cos(bb[o + 2])
+    s = math.sin(bb[o + 2])
+    dn = c * a_n - s * a_e
+    de = s * a_n + c * a_e
+    bb[o] += dn
+    bb[o + 1] += de
+    p = o + M_P
+    # F = I + e where e has column 2 = (-de, dn, 0); F P F^T = P + e P + P e^T + e P e^T
+    p00, p01, p02 = bb[p], bb[p + 1], bb[p + 2]
+    p11, p12, p22 = bb[p + 4], bb[p + 5], bb[p + 8]
+    f0 = -de
+    f1 = dn
+    n00 = p00 + 2.0 * f0 * p02 + f0 * f0 * p22 + q_v
+    n01 = p01 + f0 * p12 + f1 * p02 + f0 * f1 * p22
+    n02 = p02 + f0 * p22
+    n11 = p11 + 2.0 * f1 * p12 + f1 * f1 * p22 + q_v
+    n12 = p12 + f1 * p22
+    n22 = p22 + q_d
+    bb[p] = n00
+    bb[p + 1] = n01
+    bb[p + 2] = n02
+    bb[p + 3] = n01
+    bb[p + 4] = n11
+    bb[p + 5] = n12
+    bb[p + 6] = n02
+    bb[p + 7] = n12
+    bb[p + 8] = n22
+
+
+@jit
+def update_member(bb: Arr, o: int, vn: float, ve: float, u_n: float, u_e: float,
+                  r_var: float) -> float:
+    """EKF update of the member at ``o`` with the GNSS horizontal velocity (vn, ve) m/s at
+    the antenna, lever-arm velocity ``u`` (main frame, m/s) and per-axis variance r_var.
+    Returns its log likelihood before the cap, as ``-0.5 NIS - 0.5 log det S`` packed with
+    the NIS: the NIS is stored in the member block, the log det term returned."""
+    c = math.cos(bb[o + 2])
+    s = math.sin(bb[o + 2])
+    ln = c * u_n - s * u_e
+    le = s * u_n + c * u_e
+    z0 = vn - bb[o] - ln
+    z1 = ve - bb[o + 1] - le
+    h0 = -le  # d(ln)/dd
+    h1 = ln  # d(le)/dd
+    p = o + M_P
+    p00, p01, p02 = bb[p], bb[p + 1], bb[p + 2]
+    p11, p12, p22 = bb[p + 4], bb[p + 5], bb[p + 8]
+    # P H^T: column a = P[:, a] + h_a P[:, 2]
+    a00 = p00 + h0 * p02
+    a10 = p01 + h0 * p12
+    a20 = p02 + h0 * p22
+    a01 = p01 + h1 * p02
+    a11 = p11 + h1 * p12
+    a21 = p12 + h1 * p22
+    s00 = a00 + h0 * a20 + r_var
+    s01 = a01 + h0 * a21
+    s11 = a11 + h1 * a21 + r_var
+    det = s00 * s11 - s01 * s01
+    if not (det > 0.0) or not (s00 > 0.0):
+        bb[o + M_NIS] = math.inf
+        return -math.inf
+    i00 = s11 / det
+    i01 = -s01 / det
+    i11 = s00 / det
+    nis = z0 * (i00 * z0 + i01 * z1) + z1 * (i01 * z0 + i11 * z1)
+    # K = P H^T S^-1 (3x2)
+    k00 = a00 * i00 + a01 * i01
+    k01 = a00 * i01 + a01 * i11
+    k10 = a10 * i00 + a11 * i01
+    k11 = a10 * i01 + a11 * i11
+    k20 = a20 * i00 + a21 * i01
+    k21 = a20 * i01 + a21 * i11
+    bb[o] += k00 * z0 + k01 * z1
+    bb[o + 1] += k10 * z0 + k11 * z1
+    bb[o + 2] = wrap(bb[o + 2] + k20 * z0 + k21 * z1)
+    # P -= K (P H^T)^T, written symmetric
+    n00 = p00 - (k00 * a00 + k01 * a01)
+    n01 = p01 - (k00 * a10 + k01 * a11)
+    n02 = p02 - (k00 * a20 + k01 * a21)
+    n11 = p11 - (k10 * a10 + k11 * a11)
+    n12 = p12 - (k10 * a20 + k11 * a21)
+    n22 = p22 - (k20 * a20 + k21 * a21)
+    bb[p] = n00
+    bb[p + 1] = n01
+    bb[p + 2] = n02
+    bb[p + 3] = n01
+    bb[p + 4] = n11
+    bb[p + 5] = n12
+    bb[p + 6] = n02
+    bb[p + 7] = n12
+    bb[p + 8] = max(n22, 1e-12)
+    bb[o + M_NIS] = nis
+    return -0.5 * math.log(det)
+
+
+@jit
+def bank_fix(bb: Arr, sb: Arr, t_us: float, tol_us: float, vn: float, ve: float,
+             sd_v: float, q_v_rate: float, q_a: float, q_d_rate: float, q_scale: float,
+             min_accel: float, tau_exc: float, nis_cap: float, lw_floor: float,
+             d0_sd: float) -> int:
+    """One GNSS horizontal velocity (vn, ve) m/s with per-axis sigma ``sd_v`` stamped at
+    ``t_us``: bring the members to that time, update them, and (when excited) their weights.
+
+    Noise: velocity ``q_v_rate * T + q_a * T^2`` per axis (VRW, and unmodelled horizontal
+    specific force such as tilt error x g or vibration, m/s^2 squared as ``q_a``); offset
+    ``q_d_rate * T + q_scale * turned`` (a yaw random walk, rad^2/s, and the gyro scale
+    factor's share, rad per rad turned).  Weights change only while the low-passed
+    horizontal specific-force vector (time constant ``tau_exc``), less its noise, is at
+    least ``min_accel``.
+    Returns STARTED, PREDICTED, WEIGHTED, NOT_KEPT or NO_TIME.
+    """
+    o_r = ring_at(bb, t_us, tol_us)
+    if o_r < 0:
+        return NOT_KEPT
+    t_r = bb[o_r]
+    n = int(bb[H_N])
+    m = st.MAT
+    # lever-arm velocity C_hat (w x l), horizontal (main frame)
+    r = st.RATE
+    lv = st.LEVER
+    ux = sb[r + 1] * sb[lv + 2] - sb[r + 2] * sb[lv + 1]
+    uy = sb[r + 2] * sb[lv] - sb[r] * sb[lv + 2]
+    uz = sb[r] * sb[lv + 1] - sb[r + 1] * sb[lv]
+    u_n = sb[m] * ux + sb[m + 1] * uy + sb[m + 2] * uz
+    u_e = sb[m + 3] * ux + sb[m + 4] * uy + sb[m + 5] * uz
+    r_var = sd_v * sd_v
+    if bb[H_TLAST] < 0.0:
+        for i in range(n):
+            o = MEM + i * MW
+            d = -math.pi + (i + 0.5) * 2.0 * math.pi / n
+            c = math.cos(d)
+            s = math.sin(d)
+            bb[o] = vn - (c * u_n - s * u_e)
+            bb[o + 1] = ve - (s * u_n + c * u_e)
+            bb[o + 2] = d
+            for k in range(9):
+                bb[o + M_P + k] = 0.0
+            bb[o + M_P] = r_var
+            bb[o + M_P + 4] = r_var
+            bb[o + M_P + 8] = d0_sd * d0_sd
+            bb[o + M_LW] = 0.0
+            bb[o + M_W] = 1.0 / n
+            bb[o + M_NIS] = 0.0
+        bb[H_TLAST] = t_r
+        bb[H_CUMN] = bb[o_r + 1]
+        bb[H_CUME] = bb[o_r + 2]
+        bb[H_CUMY] = bb[o_r + 3]
+        bb[H_EXC] = 0.0
+        bb[H_LPN] = 0.0
+        bb[H_LPE] = 0.0
+        composite(bb)
+        return STARTED
+    T = (t_r - bb[H_TLAST]) * 1e-6
+    if T <= 0.0:
+        return NO_TIME
+    a_n = bb[o_r + 1] - bb[H_CUMN]
+    a_e = bb[o_r + 2] - bb[H_CUME]
+    turned = bb[o_r + 3] - bb[H_CUMY]
+    bb[H_TLAST] = t_r
+    bb[H_CUMN] = bb[o_r + 1]
+    bb[H_CUME] = bb[o_r + 2]
+    bb[H_CUMY] = bb[o_r + 3]
+    bb[H_DT] = T
+    bb[H_ACCN] = a_n / T
+    bb[H_ACCE] = a_e / T
+    # Excitation is judged on the low-passed specific-force *vector*: it passes through zero
+    # where the acceleration changes sign (PX4 #28014), and its noise floor is removed (the
+    # filter's steady-state noise power is 2 axes x (VRW^2/T) x g/(2-g)).
+    g = min(1.0, T / tau_exc)
+    bb[H_LPN] += g * (a_n / T - bb[H_LPN])
+    bb[H_LPE] += g * (a_e / T - bb[H_LPE])
+    noise2 = 2.0 * q_v_rate / T * g / (2.0 - g)
+    e2 = bb[H_LPN] * bb[H_LPN] + bb[H_LPE] * bb[H_LPE] - noise2
+    bb[H_EXC] = math.sqrt(e2) if e2 > 0.0 else 0.0
+    q_v = q_v_rate * T + q_a * T * T
+    q_d = q_d_rate * T + q_scale * turned
+    excited = bb[H_EXC] >= min_accel
+    best = -math.inf
+    nis_w = 0.0
+    for i in range(n):
+        o = MEM + i * MW
+        predict_member(bb, o, a_n, a_e, q_v, q_d)
+        half_logdet = update_member(bb, o, vn, ve, u_n, u_e, r_var)
+        nis = bb[o + M_NIS]
+        nis_w += bb[o + M_W] * min(nis, 1e6)
+        if excited:
+            bb[o + M_LW] += half_logdet - 0.5 * min(nis, nis_cap)
+            if bb[o + M_LW] > best:
+                best = bb[o + M_LW]
+    bb[H_NIS] = nis_w
+    if excited and best > -math.inf:
+        tot = 0.0
+        for i in range(n):
+            o = MEM + i * MW
+            lw = max(bb[o + M_LW] - best, -lw_floor)
+            bb[o + M_LW] = lw
+            w = math.exp(lw)
+            bb[o + M_W] = w
+            tot += w
+        for i in range(n):
+            bb[MEM + i * MW + M_W] /= tot
+    bb[H_WUPD] = 1.0 if excited else 0.0
+    composite(bb)
+    return WEIGHTED if excited else PREDICTED
+
+
+@jit
+def bank_rotate(bb: Arr, d: float) -> None:
+    """The main filter's attitude was turned about down by ``d`` rad (C <- Rz(d) C): keep
+    every hypothesis where it was (offsets minus d) and re-express the ring's sums, which
+    were rotated with the old attitude, in the new main frame."""
+    n = int(bb[H_N])
+    for i in range(n):
+        o = MEM + i * MW
+        bb[o + 2] = wrap(bb[o + 2] - d)
+    c = math.cos(d)
+    s = math.sin(d)
+    x = bb[H_CUMN]
+    y = bb[H_CUME]
+    bb[H_CUMN] = c * x - s * y
+    bb[H_CUME] = s * x + c * y
+    for i in range(RING_LEN):
+        o = RING + i * RING_W
+        if bb[o] < 0.0:
+            continue
+        x = bb[o + 1]
+        y = bb[o + 2]
+        bb[o + 1] = c * x - s * y
+        bb[o + 2] = s * x + c * y
+    composite(bb)
+
+
+@jit
+def main_yaw(sb: Arr) -> float:
+    """ZYX yaw of the main filter's attitude, rad."""
+    return math.atan2(sb[st.MAT + 3], sb[st.MAT])
+
+
+@jit
+def rotate_main(sb: Arr, d: float) -> None:
+    """Turn the main filter's attitude and its recorded history about down by ``d`` rad
+    (C <- Rz(d) C): a heading reset that leaves tilt, velocity and position alone."""
+    c = math.cos(d)
+    s = math.sin(d)
+    m = st.MAT
+    for j in range(3):
+        x = sb[m + j]
+        y = sb[m + 3 + j]
+        sb[m + j] = c * x - s * y
+        sb[m + 3 + j] = s * x + c * y
+    for i in range(st.HIST_LEN):
+        o = st.HIST + i * st.HIST_W
+        if sb[o] < 0.0:
+            continue
+        for j in range(3):
+            x = sb[o + 1 + j]
+            y = sb[o + 4 + j]
+            sb[o + 1 + j] = c * x - s * y
+            sb[o + 4 + j] = s * x + c * y
