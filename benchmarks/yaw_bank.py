@@ -103,7 +103,9 @@ class SeedResult:
     ``t_aligned_s``: first instant the estimator flagged heading aligned (NaN: never);
     ``hdg_err_deg`` / ``hdg_sd_deg``: (A,) heading error and reported 1-sigma at the aligned
     instants, deg; ``n_instants``: instants scored; ``roll_pitch_sq``: (2,) sums of squared
-    roll / pitch errors over all instants, deg^2; ``drawn``: the seed's scenario variant.
+    roll / pitch errors over all instants, deg^2; ``drawn``: the seed's scenario variant;
+    ``counters``: the estimator's non-zero counters about heading (names with ``head``,
+    ``yaw``, ``bank``, ``align`` or ``course``) at the end.
     """
 
     scenario: str
@@ -115,6 +117,7 @@ class SeedResult:
     n_instants: int
     roll_pitch_sq: Arr
     drawn: dict[str, Any] = field(default_factory=dict)
+    counters: dict[str, int] = field(default_factory=dict)
 
     @property
     def delay_s(self) -> float:
@@ -134,7 +137,8 @@ class SeedResult:
                 "heading_rms_deg": _rms(e),
                 "heading_max_abs_deg": float(np.max(np.abs(e))) if e.size else math.nan,
                 "err_at_alignment_deg": float(e[0]) if e.size else math.nan,
-                "false_alignment": self.false_alignment, "drawn": self.drawn}
+                "false_alignment": self.false_alignment, "drawn": self.drawn,
+                "counters": self.counters}
 
 
 def first_manoeuvre_s(run: SimRun, threshold_mps2: float = MANOEUVRE_MPS2) -> float:
@@ -153,8 +157,11 @@ def seed_result(name: str, seed: int, run: SimRun, res: rb.RunResult) -> SeedRes
     al = res.aligned
     t_al = float(res.t_s[np.argmax(al)]) if al.any() else math.nan
     rp = np.sum(res.err_deg[:, :2] ** 2, axis=0)
+    keys = ("head", "yaw", "bank", "align", "course")
+    counters = {k: v for k, v in res.counters.items() if v and any(w in k for w in keys)}
     return SeedResult(name, seed, first_manoeuvre_s(run), t_al, res.err_deg[al, 2].copy(),
-                      res.sd_deg[al, 2].copy(), int(res.t_s.size), rp, dict(run.randomized))
+                      res.sd_deg[al, 2].copy(), int(res.t_s.size), rp, dict(run.randomized),
+                      counters)
 
 
 def run_seed(name: str, seed: int, overrides: Mapping[str, Any] | None = None) -> SeedResult:
@@ -218,7 +225,9 @@ def targets(rec: Mapping[str, Any], sc: YawScenario) -> list[dict[str, Any]]:
     if sc.observable:
         worst = rec["delay_max_s"]
         add(f"aligned <= {ALIGN_TARGET_S:g} s on every seed",
-            f"max {_fmt(worst, '.1f')} s, never {rec['never_aligned']}/{n}",
+            f"max {_fmt(worst, '.1f')} s, never {rec['never_aligned']}/{n}"
+            + (f", early {rec['aligned_before_manoeuvre']}" if rec["aligned_before_manoeuvre"]
+               else ""),
             rec["never_aligned"] == 0 and _le(worst, ALIGN_TARGET_S))
     else:
         add("never aligned (heading unobservable)", f"aligned {rec['aligned_seeds']}/{n}",
@@ -345,10 +354,10 @@ def format_row(rec: Mapping[str, Any]) -> str:
 
 
 def format_targets(records: Sequence[Mapping[str, Any]]) -> list[str]:
-    lines = [f"{'scenario':<22}{'target':<42}{'value':<26}verdict"]
+    lines = [f"{'scenario':<22}{'target':<42}{'value':<36}verdict"]
     for rec in records:
         for t in rec["targets"]:
-            lines.append(f"{rec['scenario']:<22}{t['target']:<42}{t['value']:<26}"
+            lines.append(f"{rec['scenario']:<22}{t['target']:<42}{t['value']:<36}"
                          f"{'ok' if t['ok'] else 'MISS'}")
     return lines
 
