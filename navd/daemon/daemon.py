@@ -38,6 +38,7 @@ from navd.config import ConfigError
 from navd.config.aiding import NavConfig
 from navd.config.daemon import DaemonConfig
 from navd.core.aiding.dov import dov_status
+from navd.core.clock_guard import ClockGuard
 from navd.daemon import bias_store
 from navd.daemon.adapters import zenoh_session_config
 from navd.daemon.service import SdNotifier, watchdog_interval_s
@@ -75,6 +76,14 @@ _log = logging.getLogger("navd")
 _INFO_COUNTERS = frozenset({"imu", "gnss", "nav_start", "heading_aligned_from_course",
                             "heading_aligned_by_observability", "gnss_delayed", "pol_delayed",
                             "gnss_no_velocity", "dov_off_grid", "heading_held"})
+
+
+_CLOCK_WORDS = {
+    "clock_wild": "IMU samples off the current sensor clock, held until a new clock is "
+                  "confirmed (a single wild time stamp never restarts navigation)",
+    "clock_dropped": "held samples of a clock that did not go on, dropped",
+    "clock_out_of_range": "time stamps outside (0, 2**53) us, refused",
+}
 
 
 def _is_refusal(counter: str) -> bool:
@@ -159,6 +168,8 @@ class Daemon:
             cfg = dataclasses.replace(cfg, tables=tables, nav=NavConfig.from_tables(tables))
         self.cfg = cfg
         self.est = build_estimator(cfg.nav)
+        # only a sustained, consistent new sensor clock may restart navigation (issue 19)
+        self.clock_guard = ClockGuard(max_gap_us=round(cfg.estimator.filter.max_imu_gap * 1e6))
         self.notifier = notifier if notifier is not None else SdNotifier()
         self.rlog = RateLimitedLog(_log, cfg.daemon.warn_interval)
         self.queue = SampleQueue(cfg.daemon.queue_size, self.rlog)
@@ -434,29 +445,33 @@ class Daemon:
 
     async def _estimate(self) -> None:
         est, sinks, get = self.est, self.sinks, self.queue.get
+        guard = self.clock_guard.push
         n = 0
         restarts = est.restarts
         navigating = False
         while (item := await get()) is not None:
-            recv_ns, s = item
-            if self.recorder is not None:
-                self._record(s)
-            t_before = est.t_us
-            if output_instant(est, s):  # the one output rule (navd.pipeline)
-                if not navigating:
-                    navigating = True
-                    self._nav_since = time.monotonic()
-                sol: NavSolution | None = None
-                for sink in sinks:
-                    # the restart count starts a sink's schedule over with the estimator
-                    if sink.schedule.due(est.t_us, est.restarts):
-                        if sol is None:
-                            sol = est.solution()
-                        self._publish(sink, sol, recv_ns)
-            if est.restarts != restarts:
-                restarts = est.restarts
-                navigating = est.initialized
-                self._restarted(t_before, s.t_us)
+            recv_ns, sample = item
+            # the clock guard holds samples off the current sensor clock until a new clock
+            # is confirmed; usually it hands back just this sample
+            for s in guard(sample, recv_ns // 1000 if recv_ns else None):
+                if self.recorder is not None:
+                    self._record(s)
+                t_before = est.t_us
+                if output_instant(est, s):  # the one output rule (navd.pipeline)
+                    if not navigating:
+                        navigating = True
+                        self._nav_since = time.monotonic()
+                    sol: NavSolution | None = None
+                    for sink in sinks:
+                        # the restart count starts a sink's schedule over with the estimator
+                        if sink.schedule.due(est.t_us, est.restarts):
+                            if sol is None:
+                                sol = est.solution()
+                            self._publish(sink, sol, recv_ns)
+                if est.restarts != restarts:
+                    restarts = est.restarts
+                    navigating = est.initialized
+                    self._restarted(t_before, s.t_us)
             n += 1
             if n % 64 == 0:
                 await asyncio.sleep(0)  # a long backlog must not starve the sockets
@@ -522,6 +537,7 @@ class Daemon:
         next_log = time.monotonic() + d.log_period
         next_save = time.monotonic() + self.cfg.bias_store.save_period
         seen = dict(self.est.counters)
+        seen_clock = dict(self.clock_guard.counters)
         state = self.state()
         while True:
             await asyncio.sleep(d.status_period)
@@ -537,6 +553,13 @@ class Daemon:
                 if grew > 0 and _is_refusal(name):
                     self.rlog.warn(f"est_{name}", "estimator: %s +%d (total %d)", name, grew, n)
             seen = now_counts
+            clock = dict(self.clock_guard.counters)
+            for name, n in clock.items():
+                grew = n - seen_clock.get(name, 0)
+                if grew > 0 and name != "clock_new":  # a new clock is logged as a restart
+                    self.rlog.warn(name, "sensor clock: %s +%d (total %d): %s", name, grew,
+                                   n, _CLOCK_WORDS.get(name, ""))
+            seen_clock = clock
             if self.recorder is not None:
                 try:
                     self.recorder.flush()
@@ -644,6 +667,7 @@ class Daemon:
             "t_us": self.est.t_us,
             "estimator": {**self.est.status(), **dov_status(self.est)},
             "inputs": self.sources.counters(),
+            "clock": self.clock_guard.status(),
             "source_lock": self.sources.locks(),
             "outputs": {s.name: s.counters() for s in self.sinks},
             "queue": {"capacity": self.queue.maxsize, "size": self.queue.qsize(),
@@ -705,8 +729,9 @@ class Daemon:
                          and k not in ("frames_ok", "datagrams") and not k.startswith("src_")}
                   for name, cnt in self.sources.counters().items()}
         t = self.est.t_us * 1e-6 if self.est.t_us >= 0 else math.nan
+        clock = {k: v for k, v in self.clock_guard.counters.items() if v}
         return (f"t={t:.1f} s {head}; imu={c.get('imu', 0)} gnss={c.get('gnss', 0)} "
-                f"estimator refused={refused} input rejects={inputs} "
+                f"estimator refused={refused} input rejects={inputs} clock={clock} "
                 f"queue_drops={self.queue.drops} {lat} "
                 f"outputs={ {s.name: s.published for s in self.sinks} }")
 

@@ -83,7 +83,7 @@ class RateIntegrator:
     hold; integrating a rate over it would inject a large false increment.
     """
 
-    __slots__ = ("_last_t_us", "_max_gap_us", "_nominal_dt_us", "_reject")
+    __slots__ = ("_last_t_us", "_max_gap_us", "_new_line", "_nominal_dt_us", "_reject")
 
     def __init__(
         self,
@@ -97,9 +97,12 @@ class RateIntegrator:
         self._nominal_dt_us = nominal_dt_us
         self._max_gap_us = max_gap_us
         self._last_t_us: dict[Hashable, int] = {}
+        # per source: the stamp of a sample off its time line, which may start a new one
+        self._new_line: dict[Hashable, int] = {}
 
     def reset(self) -> None:
         self._last_t_us.clear()
+        self._new_line.clear()
 
     def note_time(self, key: Hashable, t_us: int) -> None:
         """Record a sample that arrived already integrated, so a later rate sample of the same
@@ -112,7 +115,11 @@ class RateIntegrator:
     def interval_us(self, key: Hashable, t_us: int) -> int | None:
         """Interval ending at ``t_us`` for this source, or None if the sample is to be dropped.
 
-        Advances the source's time line except for duplicates.
+        A sample off the source's time line (back in time, or a gap) does not move the line
+        at once: it is held as the start of a possible new line, which the next sample
+        confirms by continuing it (a sensor restart, a real gap).  If the next sample
+        continues the old line instead, the odd one was a single wild stamp and cost only
+        itself (issue 19: interleaved forged stamps must not drop every real sample).
         """
         last = self._last_t_us.get(key)
         if last is None:
@@ -122,14 +129,22 @@ class RateIntegrator:
         if dt_us == 0:
             self._reject("imu_duplicate_time", "source %r repeated t_us=%d", key, t_us)
             return None
-        self._last_t_us[key] = t_us
+        if 0 < dt_us <= self._max_gap_us:
+            self._last_t_us[key] = t_us
+            self._new_line.pop(key, None)
+            return dt_us
+        start = self._new_line.get(key)
+        if start is not None and 0 < t_us - start <= self._max_gap_us:
+            # the held sample started a line that goes on: switch to it
+            self._last_t_us[key] = t_us
+            del self._new_line[key]
+            return t_us - start
+        self._new_line[key] = t_us
         if dt_us < 0:
             return self._restart(
                 "imu_time_backwards", "source %r time went back by %d us", key, -dt_us
             )
-        if dt_us > self._max_gap_us:
-            return self._restart("imu_gap", "source %r gap of %d us", key, dt_us)
-        return dt_us
+        return self._restart("imu_gap", "source %r gap of %d us", key, dt_us)
 
     def _restart(self, reason: str, detail: str, *args: object) -> int | None:
         # Counted even when a nominal interval rescues the sample: a restart is worth knowing.
