@@ -34,8 +34,8 @@ def multirotor(seed: int, duration_s: float, yaw0_deg: float = 0.0) -> SimRun:
 def _fd_jacobian(fn: object, x: np.ndarray, m: int, *args: float) -> np.ndarray:
     out_p = np.zeros(m)
     out_m = np.zeros(m)
-    J = np.zeros((m, 3))
-    for k in range(3):
+    J = np.zeros((m, 6))
+    for k in range(6):
         h = 1e-6
         xp = x.copy()
         xm = x.copy()
@@ -49,30 +49,31 @@ def _fd_jacobian(fn: object, x: np.ndarray, m: int, *args: float) -> np.ndarray:
 
 @pytest.mark.parametrize("d", [-2.9, -1.0, 0.0, 0.4, 2.2])
 def test_member_kernels_match_finite_difference_jacobians_and_a_textbook_ekf(d: float) -> None:
-    """GIVEN a member state (vN, vE, d) with a random covariance, a specific-force increment
-    a and a lever-arm velocity u (main frame),
+    """GIVEN a member state (vN, vE, d, r, bN, bE) with a random covariance, a specific-force
+    increment a over T and a lever-arm velocity u (main frame),
     WHEN predict_member and update_member run in the bank buffer,
-    THEN the predicted covariance is F P F^T + Q and the updated state/covariance are the
-    textbook EKF's, with F and H the central-difference Jacobians of the nonlinear model
-    (member_f, member_h), to 1e-7 relative."""
+    THEN the predicted state is f(x) and its covariance F P F^T + Q, and the updated
+    state/covariance/NIS are the textbook EKF's, with F and H the central-difference
+    Jacobians of the nonlinear model (member_f, member_h), to 1e-7 relative."""
     rng = np.random.default_rng(int(1000 * (d + 3)))
-    x = np.array([1.3, -0.7, d])
-    A = rng.normal(size=(3, 3))
-    P = A @ A.T * 0.05 + np.diag([0.01, 0.01, 0.2])
-    a_n, a_e, u_n, u_e = 0.31, -0.22, 0.4, 0.9
-    q_v, q_d, r = 0.003, 1e-4, 0.02
+    x = np.array([1.3, -0.7, d, 0.004, 0.05, -0.08])
+    A = rng.normal(size=(6, 6))
+    P = A @ A.T * 0.05 + np.diag([0.01, 0.01, 0.2, 1e-4, 0.1, 0.1])
+    a_n, a_e, u_n, u_e, T = 0.31, -0.22, 0.4, 0.9, 0.2
+    q_v, q_d, q_r, q_b, r = 0.003, 1e-4, 1e-6, 1e-3, 0.02
     bb = np.zeros(yk.SIZE)
     o = yk.MEM
-    bb[o:o + 3] = x
-    bb[o + yk.M_P:o + yk.M_P + 9] = P.ravel()
-    yk.predict_member(bb, o, a_n, a_e, q_v, q_d)
-    F = _fd_jacobian(yk.member_f, x, 3, a_n, a_e)
-    fx = np.zeros(3)
-    yk.member_f(x, a_n, a_e, fx)
-    Pp = F @ P @ F.T + np.diag([q_v, q_v, q_d])
-    np.testing.assert_allclose(bb[o:o + 3], fx, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(bb[o + yk.M_P:o + yk.M_P + 9].reshape(3, 3), Pp, rtol=1e-7,
-                               atol=1e-12)
+    n = yk.NX
+    bb[o:o + n] = x
+    bb[o + yk.M_P:o + yk.M_P + n * n] = P.ravel()
+    yk.predict_member(bb, o, a_n, a_e, T, q_v, q_d, q_r, q_b)
+    F = _fd_jacobian(yk.member_f, x, 6, a_n, a_e, T)
+    fx = np.zeros(6)
+    yk.member_f(x, a_n, a_e, T, fx)
+    Pp = F @ P @ F.T + np.diag([q_v, q_v, q_d, q_r, q_b, q_b])
+    np.testing.assert_allclose(bb[o:o + n], fx, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(bb[o + yk.M_P:o + yk.M_P + n * n].reshape(n, n), Pp,
+                               rtol=1e-7, atol=1e-12)
     # update with a measured antenna velocity
     vn, ve = fx[0] + 0.2, fx[1] - 0.1
     yk.update_member(bb, o, vn, ve, u_n, u_e, r)
@@ -86,7 +87,8 @@ def test_member_kernels_match_finite_difference_jacobians_and_a_textbook_ekf(d: 
     P_ref = Pp - K @ S @ K.T
     np.testing.assert_allclose(bb[o:o + 2], x_ref[:2], rtol=1e-7, atol=1e-10)
     assert abs(yk.wrap(bb[o + 2] - x_ref[2])) < 1e-9
-    np.testing.assert_allclose(bb[o + yk.M_P:o + yk.M_P + 9].reshape(3, 3), P_ref,
+    np.testing.assert_allclose(bb[o + 3:o + n], x_ref[3:], rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(bb[o + yk.M_P:o + yk.M_P + n * n].reshape(n, n), P_ref,
                                rtol=1e-6, atol=1e-10)
     assert bb[o + yk.M_NIS] == pytest.approx(float(zz @ np.linalg.solve(S, zz)), rel=1e-7)
 

@@ -123,6 +123,14 @@ class YawBankSection:
     yaw_noise: float = _f(0.3, "deg_per_sqrt_s")
     # gyro scale-factor uncertainty: yaw variance grows by (this)^2 per radian turned
     gyro_scale_sd: float = _f(1.0, "pct")
+    # the main filter's yaw drift (its unestimated gyro bias about down), learned by every
+    # hypothesis: prior 1-sigma and random walk
+    rate_sd: float = _f(0.5, "dps")
+    rate_noise: float = _f(0.01, "dps_per_sqrt_s")
+    # what the main filter's tilt and accelerometer-bias errors leave in the horizontal
+    # specific force, per hypothesis: prior 1-sigma and random walk
+    accel_bias_sd: float = _f(0.5, "mps2")
+    accel_bias_noise: float = _f(0.02, "mps2_per_sqrt_s")
     # weights change (and the bank can become trusted) only while the low-passed horizontal
     # specific force is at least this: without it yaw is unobservable
     min_accel: float = _f(0.5, "mps2")

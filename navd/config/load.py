@@ -99,6 +99,7 @@ _UNITS: dict[str, float] = {
     "deg_per_h": DEG / 3600.0,
     "deg_per_sqrt_h": DEG / 60.0,  # deg/sqrt(h) -> rad/sqrt(s)
     "deg_per_sqrt_s": DEG,  # deg/sqrt(s) -> rad/sqrt(s)
+    "dps_per_sqrt_s": DEG,  # (deg/s)/sqrt(s) -> rad/s/sqrt(s)
     "pct": 0.01,
     "mps_per_sqrt_s": 1.0,
     "mps_per_sqrt_h": 1.0 / 60.0,

@@ -89,11 +89,21 @@ class YawBank:
         self.n = c.members
         self.buf = np.zeros(yk.SIZE)
         self._s = np.zeros(_NS)
-        self._q_v_rate = cfg.imu.accel_vrw ** 2
-        self._q_a = c.accel_noise ** 2
-        self._q_d_rate = c.yaw_noise ** 2
-        self._q_scale = c.gyro_scale_sd ** 2
-        self._d0_sd = math.pi / self.n
+        par = np.zeros(yk.N_PAR)
+        par[yk.P_QV] = cfg.imu.accel_vrw ** 2
+        par[yk.P_QA] = c.accel_noise ** 2
+        par[yk.P_QD] = c.yaw_noise ** 2
+        par[yk.P_QS] = c.gyro_scale_sd ** 2
+        par[yk.P_QR] = c.rate_noise ** 2
+        par[yk.P_QB] = c.accel_bias_noise ** 2
+        par[yk.P_MINACC] = c.min_accel
+        par[yk.P_TAU] = c.excitation_tau
+        par[yk.P_NISCAP] = c.nis_cap
+        par[yk.P_FLOOR] = c.weight_floor
+        par[yk.P_D0] = math.pi / self.n
+        par[yk.P_R0] = c.rate_sd
+        par[yk.P_B0] = c.accel_bias_sd
+        self._par = par
         self._trial_gate = [0.0] + [chi2_quantile(_TRIAL_PROB, 3 * k)
                                     for k in range(1, c.trial_epochs + 1)]
         self.reset()
@@ -149,11 +159,8 @@ class YawBank:
         sd = (g.vel_acc_mps if g.vel_acc_mps > 0.0 and math.isfinite(g.vel_acc_mps)
               else _DEFAULT_VEL_ACC)
         sd = max(sd, self.cfg.gnss.min_vel_sd)
-        c = self.c
-        res = yk.bank_fix(self.buf, est.buf, float(g.t_us), 0.5 * est.imu_dt_us + 1.0,
-                          g.vel_n, g.vel_e, sd, self._q_v_rate, self._q_a, self._q_d_rate,
-                          self._q_scale, c.min_accel, c.excitation_tau, c.nis_cap,
-                          c.weight_floor, self._d0_sd)
+        res = yk.bank_fix(self.buf, est.buf, self._par, float(g.t_us),
+                          0.5 * est.imu_dt_us + 1.0, g.vel_n, g.vel_e, sd)
         self._s[_RESULT] = res
         if res == yk.NOT_KEPT:
             est.counters["yaw_bank_fix_not_kept"] += 1
@@ -194,6 +201,8 @@ class YawBank:
                 self._begin_trial(est, t)
                 est.counters["yaw_bank_trials"] += 1
             return
+        if trusted:
+            self._correct_drift(est)
         p22 = float(est.P[2, 2])
         comb = math.sqrt(max(float(self.buf[yk.H_VAR]), 0.0) + p22)
         if state == TRIAL:
@@ -268,15 +277,45 @@ class YawBank:
             self.buf[o + yk.M_W] = 1.0 / self.n
         yk.composite(self.buf)
 
+    def _correct_drift(self, est: Estimator, widen: float = 0.0) -> None:
+        """The bank's offset rate r is the main yaw's drift, -(gyro-bias error) about down
+        (c_d = third row of C_b^n, body components of down).  A significant r (beyond 3
+        sigma) means the main gyro-bias estimate is off along c_d: correct it there, keep
+        the hypotheses' rates consistent, and make the bias variance along c_d at least the
+        bank's (plus ``widen``, rad^2/s^2): the main filter's gyro-bias model was too sure."""
+        b = self.buf
+        r = float(b[yk.H_RATE])
+        rv = float(b[yk.H_RVAR])
+        if r * r <= 9.0 * rv and widen <= 0.0:
+            return
+        m = est.mat_nb
+        c0, c1, c2 = float(m[2, 0]), float(m[2, 1]), float(m[2, 2])
+        P = est.P
+        v = (c0 * (c0 * P[9, 9] + c1 * P[9, 10] + c2 * P[9, 11])
+             + c1 * (c0 * P[10, 9] + c1 * P[10, 10] + c2 * P[10, 11])
+             + c2 * (c0 * P[11, 9] + c1 * P[11, 10] + c2 * P[11, 11]))
+        if r * r > 9.0 * rv:
+            bg = est.bias_g
+            bg[0] -= r * c0
+            bg[1] -= r * c1
+            bg[2] -= r * c2
+            yk.bank_rate_shift(b, r)
+            est.counters["yaw_bank_gyro_bias_corrected"] += 1
+        add = max(0.0, rv + widen - float(v))
+        if add > 0.0:
+            cc = (c0, c1, c2)
+            for i in range(3):
+                for j in range(3):
+                    P[9 + i, 9 + j] += add * cc[i] * cc[j]
+
     def _realign(self, est: Estimator, t: float, off: float) -> None:
         """The main heading drifted away from a trusted bank: its model was optimistic.
-        Reset it to the bank, widen the gyro-bias sigma to the drift rate seen, re-try."""
+        Reset it to the bank, widen the gyro-bias sigma along down to the drift seen since
+        the two last agreed, re-try."""
         s = self._s
-        since = max((t - max(s[_LAST_AGREE_T], s[_ALIGNED_T])) * 1e-6, 1.0)
+        since = max((t - max(s[_LAST_AGREE_T], s[_ALIGNED_T])) * 1e-6, 10.0)
         rate = abs(off) / since
-        P = est.P
-        for i in range(9, 12):
-            P[i, i] = max(float(P[i, i]), rate * rate)
+        self._correct_drift(est, rate * rate)
         est.heading_aligned = False
         est.counters["yaw_bank_realigned"] += 1
         self._begin_trial(est, t)

@@ -5,17 +5,28 @@ the true attitude is ``Rz(d_i) C_hat``: the main filter's attitude turned about 
 down axis by its yaw offset d_i (the main filter supplies the tilt and integrates the gyro
 with its bias estimates, so a member needs no attitude of its own).  Its state is
 
-    x_i = [vN, vE, d_i]      NED horizontal velocity (m/s), yaw offset (rad)
+    x_i = [vN, vE, d_i, r_i, bN_i, bE_i]
+
+NED horizontal velocity (m/s), yaw offset (rad), its rate (rad/s), and a horizontal specific-
+force error (m/s^2, NED).  r is the main filter's own yaw drift, its unestimated gyro bias
+about down: common to all members, learned in turns, and what tells the estimator how far its
+gyro-bias model is off.  b is what the main filter's tilt and accelerometer-bias errors leave
+in the horizontal specific force (a 1 deg tilt error is 0.17 m/s^2): without it, one straight
+acceleration cannot tell a yaw error from a tilt error, and a bank driven by a poor tilt
+converges confidently to a wrong yaw; with it, yaw comes from accelerations that change in
+direction or size (a turn, a stop), which separate the two.
 
 Between two GNSS epochs the main filter's specific-force increments, rotated with C_hat,
 sum to ``a = sum C_hat dv_b`` (horizontal NED of the main frame, m/s; gravity and Coriolis
 have no or a negligible horizontal part).  Member i predicts
 
-    v_i <- v_i + Rz2(d_i) a,          F = [[1, 0, -aE_i], [0, 1, aN_i], [0, 0, 1]]
+    v_i <- v_i + Rz2(d_i) a + b_i T,  d_i <- d_i + r_i T,
+    F = I + E,  E[0, 2] = -aE_i, E[1, 2] = aN_i, E[2, 3] = T, E[0, 4] = E[1, 5] = T
 
 with ``(aN_i, aE_i) = Rz2(d_i) a`` and observes the GNSS horizontal velocity at the antenna,
 
-    h_i(x) = v_i + Rz2(d_i) u,   H = [[1, 0, -uE_i], [0, 1, uN_i]],   u = (C_hat (w x l))_NE
+    h_i(x) = v_i + Rz2(d_i) u,   H = [[1, 0, -uE_i, 0, 0, 0], [0, 1, uN_i, 0, 0, 0]],
+    u = (C_hat (w x l))_NE
 
 The members' weights follow the Gaussian likelihood of their innovations (log domain, capped
 NIS per epoch, floored relative to the best so that no hypothesis is lost for good), and only
@@ -56,12 +67,15 @@ H_WUPD = 12  # 1 when the last update also updated the weights
 H_DT = 13  # last interval (s)
 H_LPN = 14  # low-passed horizontal specific force, main frame N, E (m/s^2)
 H_LPE = 15
-MEM = 16
-MW = 16  # per member: vN, vE, d, P (3x3 row-major), log weight, weight, NIS
-M_P = 3
-M_LW = 12
-M_W = 13
-M_NIS = 14
+H_RATE = 16  # composite offset rate (rad/s) and its variance
+H_RVAR = 17
+SCR = 24  # scratch (48,)
+MEM = 72
+MW = 48  # per member: vN, vE, d, r, bN, bE, P (6x6 row-major), log weight, weight, NIS
+M_P = 6
+M_LW = 42
+M_W = 43
+M_NIS = 44
 RING = MEM + NMAX * MW
 RING_LEN = 512
 RING_W = 4  # t_us, cumulative N, E (m/s), cumulative |yaw turned| (rad)
@@ -158,22 +172,38 @@ def composite(bb: Arr) -> None:
         cs += w * math.cos(bb[o + 2])
     mean = math.atan2(sn, cs)
     var = 0.0
+    rm = 0.0
     for i in range(n):
         o = MEM + i * MW
         d = wrap(bb[o + 2] - mean)
-        var += bb[o + M_W] * (bb[o + M_P + 8] + d * d)
+        var += bb[o + M_W] * (bb[o + M_P + 2 * NX + 2] + d * d)
+        rm += bb[o + M_W] * bb[o + 3]
+    rv = 0.0
+    for i in range(n):
+        o = MEM + i * MW
+        d = bb[o + 3] - rm
+        rv += bb[o + M_W] * (bb[o + M_P + 3 * NX + 3] + d * d)
     bb[H_OFF] = mean
     bb[H_VAR] = var
+    bb[H_RATE] = rm
+    bb[H_RVAR] = rv
+
+
+NX = 6  # member state size
 
 
 @jit
-def member_f(x: Arr, a_n: float, a_e: float, out: Arr) -> None:
-    """The members' prediction f(x) = [v + Rz2(d) a, d] (for the Jacobian test)."""
+def member_f(x: Arr, a_n: float, a_e: float, T: float, out: Arr) -> None:
+    """The members' prediction f(x) = [v + Rz2(d) a + b T, d + r T, r, b] (for the Jacobian
+    test)."""
     c = math.cos(x[2])
     s = math.sin(x[2])
-    out[0] = x[0] + c * a_n - s * a_e
-    out[1] = x[1] + s * a_n + c * a_e
-    out[2] = x[2]
+    out[0] = x[0] + c * a_n - s * a_e + x[4] * T
+    out[1] = x[1] + s * a_n + c * a_e + x[5] * T
+    out[2] = x[2] + x[3] * T
+    out[3] = x[3]
+    out[4] = x[4]
+    out[5] = x[5]
 
 
 @jit
@@ -186,35 +216,48 @@ def member_h(x: Arr, u_n: float, u_e: float, out: Arr) -> None:
 
 
 @jit
-def predict_member(bb: Arr, o: int, a_n: float, a_e: float, q_v: float, q_d: float) -> None:
-    """Member at offset ``o``: velocity + Rz2(d) a; P <- F P F^T + diag(q_v, q_v, q_d)."""
+def predict_member(bb: Arr, o: int, a_n: float, a_e: float, T: float, q_v: float,
+                   q_d: float, q_r: float, q_b: float) -> None:
+    """Member at offset ``o``: v + Rz2(d) a + b T, d + r T; P <- F P F^T +
+    diag(q_v, q_v, q_d, q_r, q_b, q_b) with F = I + E (see the module doc)."""
     c = math.cos(bb[o + 2])
     s = math.sin(bb[o + 2])
     dn = c * a_n - s * a_e
     de = s * a_n + c * a_e
-    bb[o] += dn
-    bb[o + 1] += de
+    bb[o] += dn + bb[o + 4] * T
+    bb[o + 1] += de + bb[o + 5] * T
+    bb[o + 2] = wrap(bb[o + 2] + bb[o + 3] * T)
     p = o + M_P
-    # F = I + e where e has column 2 = (-de, dn, 0); F P F^T = P + e P + P e^T + e P e^T
-    p00, p01, p02 = bb[p], bb[p + 1], bb[p + 2]
-    p11, p12, p22 = bb[p + 4], bb[p + 5], bb[p + 8]
-    f0 = -de
-    f1 = dn
-    n00 = p00 + 2.0 * f0 * p02 + f0 * f0 * p22 + q_v
-    n01 = p01 + f0 * p12 + f1 * p02 + f0 * f1 * p22
-    n02 = p02 + f0 * p22
-    n11 = p11 + 2.0 * f1 * p12 + f1 * f1 * p22 + q_v
-    n12 = p12 + f1 * p22
-    n22 = p22 + q_d
-    bb[p] = n00
-    bb[p + 1] = n01
-    bb[p + 2] = n02
-    bb[p + 3] = n01
-    bb[p + 4] = n11
-    bb[p + 5] = n12
-    bb[p + 6] = n02
-    bb[p + 7] = n12
-    bb[p + 8] = n22
+    w = SCR
+    # rows of F P: row0 = P0 - de P2 + T P4, row1 = P1 + dn P2 + T P5, row2 = P2 + T P3
+    for j in range(NX):
+        p2 = bb[p + 2 * NX + j]
+        p3 = bb[p + 3 * NX + j]
+        bb[w + j] = bb[p + j] - de * p2 + T * bb[p + 4 * NX + j]
+        bb[w + NX + j] = bb[p + NX + j] + dn * p2 + T * bb[p + 5 * NX + j]
+        bb[w + 2 * NX + j] = p2 + T * p3
+        for i in range(3, NX):
+            bb[w + i * NX + j] = bb[p + i * NX + j]
+    # (F P) F^T: the same combination of columns
+    for i in range(NX):
+        r = w + i * NX
+        a2 = bb[r + 2]
+        bb[p + i * NX] = bb[r] - de * a2 + T * bb[r + 4]
+        bb[p + i * NX + 1] = bb[r + 1] + dn * a2 + T * bb[r + 5]
+        bb[p + i * NX + 2] = a2 + T * bb[r + 3]
+        for j in range(3, NX):
+            bb[p + i * NX + j] = bb[r + j]
+    for i in range(NX):
+        for j in range(i + 1, NX):
+            m = 0.5 * (bb[p + i * NX + j] + bb[p + j * NX + i])
+            bb[p + i * NX + j] = m
+            bb[p + j * NX + i] = m
+    bb[p] += q_v
+    bb[p + NX + 1] += q_v
+    bb[p + 2 * NX + 2] += q_d
+    bb[p + 3 * NX + 3] += q_r
+    bb[p + 4 * NX + 4] += q_b
+    bb[p + 5 * NX + 5] += q_b
 
 
 @jit
@@ -222,8 +265,7 @@ def update_member(bb: Arr, o: int, vn: float, ve: float, u_n: float, u_e: float,
                   r_var: float) -> float:
     """EKF update of the member at ``o`` with the GNSS horizontal velocity (vn, ve) m/s at
     the antenna, lever-arm velocity ``u`` (main frame, m/s) and per-axis variance r_var.
-    Returns its log likelihood before the cap, as ``-0.5 NIS - 0.5 log det S`` packed with
-    the NIS: the NIS is stored in the member block, the log det term returned."""
+    Stores the NIS in the member block; returns -0.5 log det S (-inf: S not positive)."""
     c = math.cos(bb[o + 2])
     s = math.sin(bb[o + 2])
     ln = c * u_n - s * u_e
@@ -233,18 +275,14 @@ def update_member(bb: Arr, o: int, vn: float, ve: float, u_n: float, u_e: float,
     h0 = -le  # d(ln)/dd
     h1 = ln  # d(le)/dd
     p = o + M_P
-    p00, p01, p02 = bb[p], bb[p + 1], bb[p + 2]
-    p11, p12, p22 = bb[p + 4], bb[p + 5], bb[p + 8]
-    # P H^T: column a = P[:, a] + h_a P[:, 2]
-    a00 = p00 + h0 * p02
-    a10 = p01 + h0 * p12
-    a20 = p02 + h0 * p22
-    a01 = p01 + h1 * p02
-    a11 = p11 + h1 * p12
-    a21 = p12 + h1 * p22
-    s00 = a00 + h0 * a20 + r_var
-    s01 = a01 + h0 * a21
-    s11 = a11 + h1 * a21 + r_var
+    w = SCR
+    # P H^T (NX x 2): column a = P[:, a] + h_a P[:, 2]
+    for i in range(NX):
+        bb[w + 2 * i] = bb[p + i * NX] + h0 * bb[p + i * NX + 2]
+        bb[w + 2 * i + 1] = bb[p + i * NX + 1] + h1 * bb[p + i * NX + 2]
+    s00 = bb[w] + h0 * bb[w + 4] + r_var
+    s01 = bb[w + 1] + h0 * bb[w + 5]
+    s11 = bb[w + 3] + h1 * bb[w + 5] + r_var
     det = s00 * s11 - s01 * s01
     if not (det > 0.0) or not (s00 > 0.0):
         bb[o + M_NIS] = math.inf
@@ -253,52 +291,76 @@ def update_member(bb: Arr, o: int, vn: float, ve: float, u_n: float, u_e: float,
     i01 = -s01 / det
     i11 = s00 / det
     nis = z0 * (i00 * z0 + i01 * z1) + z1 * (i01 * z0 + i11 * z1)
-    # K = P H^T S^-1 (3x2)
-    k00 = a00 * i00 + a01 * i01
-    k01 = a00 * i01 + a01 * i11
-    k10 = a10 * i00 + a11 * i01
-    k11 = a10 * i01 + a11 * i11
-    k20 = a20 * i00 + a21 * i01
-    k21 = a20 * i01 + a21 * i11
-    bb[o] += k00 * z0 + k01 * z1
-    bb[o + 1] += k10 * z0 + k11 * z1
-    bb[o + 2] = wrap(bb[o + 2] + k20 * z0 + k21 * z1)
+    # K = P H^T S^-1 (NX x 2), after P H^T in the scratch
+    k = w + 2 * NX
+    for i in range(NX):
+        a0 = bb[w + 2 * i]
+        a1 = bb[w + 2 * i + 1]
+        bb[k + 2 * i] = a0 * i00 + a1 * i01
+        bb[k + 2 * i + 1] = a0 * i01 + a1 * i11
+    for i in range(NX):
+        bb[o + i] += bb[k + 2 * i] * z0 + bb[k + 2 * i + 1] * z1
+    bb[o + 2] = wrap(bb[o + 2])
     # P -= K (P H^T)^T, written symmetric
-    n00 = p00 - (k00 * a00 + k01 * a01)
-    n01 = p01 - (k00 * a10 + k01 * a11)
-    n02 = p02 - (k00 * a20 + k01 * a21)
-    n11 = p11 - (k10 * a10 + k11 * a11)
-    n12 = p12 - (k10 * a20 + k11 * a21)
-    n22 = p22 - (k20 * a20 + k21 * a21)
-    bb[p] = n00
-    bb[p + 1] = n01
-    bb[p + 2] = n02
-    bb[p + 3] = n01
-    bb[p + 4] = n11
-    bb[p + 5] = n12
-    bb[p + 6] = n02
-    bb[p + 7] = n12
-    bb[p + 8] = max(n22, 1e-12)
+    for i in range(NX):
+        for j in range(i, NX):
+            v = bb[p + i * NX + j] - (bb[k + 2 * i] * bb[w + 2 * j]
+                                      + bb[k + 2 * i + 1] * bb[w + 2 * j + 1])
+            bb[p + i * NX + j] = v
+            bb[p + j * NX + i] = v
+    for i in range(NX):
+        bb[p + i * NX + i] = max(bb[p + i * NX + i], 1e-14)
     bb[o + M_NIS] = nis
     return -0.5 * math.log(det)
 
 
+# bank_fix parameters (``par``, set once from the config)
+P_QV = 0  # VRW^2, m^2/s^3
+P_QA = 1  # unmodelled horizontal specific force^2, m^2/s^4
+P_QD = 2  # yaw random walk, rad^2/s
+P_QS = 3  # gyro scale factor^2, rad per rad turned
+P_QR = 4  # offset-rate random walk, (rad/s)^2/s
+P_QB = 5  # specific-force error random walk, (m/s^2)^2/s
+P_MINACC = 6  # excitation threshold, m/s^2
+P_TAU = 7  # excitation low-pass, s
+P_NISCAP = 8
+P_FLOOR = 9  # log-weight floor below the best, nats
+P_D0 = 10  # initial offset sigma, rad
+P_R0 = 11  # initial offset-rate sigma, rad/s
+P_B0 = 12  # initial specific-force error sigma, m/s^2
+N_PAR = 13
+
+
 @jit
-def bank_fix(bb: Arr, sb: Arr, t_us: float, tol_us: float, vn: float, ve: float,
-             sd_v: float, q_v_rate: float, q_a: float, q_d_rate: float, q_scale: float,
-             min_accel: float, tau_exc: float, nis_cap: float, lw_floor: float,
-             d0_sd: float) -> int:
+def bank_fix(bb: Arr, sb: Arr, par: Arr, t_us: float, tol_us: float, vn: float, ve: float,
+             sd_v: float) -> int:
     """One GNSS horizontal velocity (vn, ve) m/s with per-axis sigma ``sd_v`` stamped at
     ``t_us``: bring the members to that time, update them, and (when excited) their weights.
+    ``par`` (N_PAR,): the parameters named P_* above.
 
     Noise: velocity ``q_v_rate * T + q_a * T^2`` per axis (VRW, and unmodelled horizontal
     specific force such as tilt error x g or vibration, m/s^2 squared as ``q_a``); offset
     ``q_d_rate * T + q_scale * turned`` (a yaw random walk, rad^2/s, and the gyro scale
-    factor's share, rad per rad turned).  Weights change only while the low-passed
-    horizontal specific-force vector (time constant ``tau_exc``), less its noise, is at
-    least ``min_accel``.
+    factor's share, rad per rad turned); offset rate ``q_r_rate * T`` ((rad/s)^2/s);
+    specific-force error ``q_b_rate * T`` ((m/s^2)^2/s).  Members start at offsets evenly
+    spread with sigma ``d0_sd``, rate 0 +- ``r0_sd``, specific-force error 0 +- ``b0_sd``.  Weights
+    change only while the low-passed horizontal specific-force vector (time constant
+    ``tau_exc``), less its noise, is at least ``min_accel``.
     Returns STARTED, PREDICTED, WEIGHTED, NOT_KEPT or NO_TIME.
     """
+    q_v_rate = par[P_QV]
+    q_a = par[P_QA]
+    q_d_rate = par[P_QD]
+    q_scale = par[P_QS]
+    q_r_rate = par[P_QR]
+    q_b_rate = par[P_QB]
+    min_accel = par[P_MINACC]
+    tau_exc = par[P_TAU]
+    nis_cap = par[P_NISCAP]
+    lw_floor = par[P_FLOOR]
+    d0_sd = par[P_D0]
+    r0_sd = par[P_R0]
+    b0_sd = par[P_B0]
     o_r = ring_at(bb, t_us, tol_us)
     if o_r < 0:
         return NOT_KEPT
@@ -323,11 +385,17 @@ def bank_fix(bb: Arr, sb: Arr, t_us: float, tol_us: float, vn: float, ve: float,
             bb[o] = vn - (c * u_n - s * u_e)
             bb[o + 1] = ve - (s * u_n + c * u_e)
             bb[o + 2] = d
-            for k in range(9):
+            bb[o + 3] = 0.0
+            bb[o + 4] = 0.0
+            bb[o + 5] = 0.0
+            for k in range(NX * NX):
                 bb[o + M_P + k] = 0.0
             bb[o + M_P] = r_var
-            bb[o + M_P + 4] = r_var
-            bb[o + M_P + 8] = d0_sd * d0_sd
+            bb[o + M_P + NX + 1] = r_var
+            bb[o + M_P + 2 * NX + 2] = d0_sd * d0_sd
+            bb[o + M_P + 3 * NX + 3] = r0_sd * r0_sd
+            bb[o + M_P + 4 * NX + 4] = b0_sd * b0_sd
+            bb[o + M_P + 5 * NX + 5] = b0_sd * b0_sd
             bb[o + M_LW] = 0.0
             bb[o + M_W] = 1.0 / n
             bb[o + M_NIS] = 0.0
@@ -369,7 +437,7 @@ def bank_fix(bb: Arr, sb: Arr, t_us: float, tol_us: float, vn: float, ve: float,
     nis_w = 0.0
     for i in range(n):
         o = MEM + i * MW
-        predict_member(bb, o, a_n, a_e, q_v, q_d)
+        predict_member(bb, o, a_n, a_e, T, q_v, q_d, q_r_rate * T, q_b_rate * T)
         half_logdet = update_member(bb, o, vn, ve, u_n, u_e, r_var)
         nis = bb[o + M_NIS]
         nis_w += bb[o + M_W] * min(nis, 1e6)
@@ -417,6 +485,16 @@ def bank_rotate(bb: Arr, d: float) -> None:
         y = bb[o + 2]
         bb[o + 1] = c * x - s * y
         bb[o + 2] = s * x + c * y
+    composite(bb)
+
+
+@jit
+def bank_rate_shift(bb: Arr, dr: float) -> None:
+    """The main filter's yaw drift was reduced by ``dr`` rad/s (its gyro bias corrected):
+    every hypothesis' offset rate loses it too."""
+    n = int(bb[H_N])
+    for i in range(n):
+        bb[MEM + i * MW + 3] -= dr
     composite(bb)
 
 
