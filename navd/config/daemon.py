@@ -61,6 +61,8 @@ class DaemonSection:
     log_level: str = _f("info", choices=("debug", "info", "warning", "error"))
     event_loop: str = _f("auto", choices=("auto", "uvloop", "asyncio"))
     rx_buffer: int = _f(1 << 20, "bytes")  # UDP input socket receive buffer
+    # navigating without a fused GNSS fix for this long (sensor time) is "coasting"
+    gnss_timeout: float = _f(3.0, "s")
 
     def validate(self) -> None:
         s = "daemon"
@@ -70,6 +72,7 @@ class DaemonSection:
               "a number of seconds in [0.05, 3600]")
         check(self.log_period > 0.0, s, "log_period_s", "a number of seconds > 0")
         check(self.warn_interval >= 0.0, s, "warn_interval_s", "a number of seconds >= 0")
+        check(self.gnss_timeout > 0.0, s, "gnss_timeout_s", "a number of seconds > 0")
 
 
 @dataclass(frozen=True)

@@ -2,16 +2,17 @@
 
 One ``asyncio.TaskGroup`` holds four tasks:
 
-estimator  the queue's only consumer: records each sample, pushes it into the estimator
+estimator  the queue's only consumer: passes each sample through the clock guard
+           (:mod:`navd.core.clock_guard`), records it, pushes it into the estimator
            (sensor time only) and, right after a push that carried the state past a sink's
            next output instant, hands that sink the solution and notes the latency from the
            packet's host receive time to the send.
 status     every ``status_period_s``: Zenoh status, sd_notify STATUS, rate-limited warnings
            for what the estimator refused, an info line every ``log_period_s``.
-watchdog   WATCHDOG=1 every half ``WATCHDOG_USEC``, but only if the estimator's sensor time
-           moved since the last tick: a stalled input or a stuck estimator lets systemd
-           restart us.
-heartbeat  MAVLink HEARTBEAT.
+watchdog   WATCHDOG=1 every half ``WATCHDOG_USEC``, only while outputs are produced
+           (sensor time moved and, once navigating, a solution went out since the last
+           tick): stalled input, a stuck estimator or failing outputs let systemd restart us.
+heartbeat  MAVLink HEARTBEAT, system_status from :data:`HEALTH`.
 
 Start: warm the estimator's JIT kernels, open sinks, open sources, READY=1.  Stop (SIGTERM,
 SIGINT): STOPPING=1, stop accepting input, let the estimator drain what is queued, close
@@ -45,6 +46,8 @@ from navd.daemon.service import SdNotifier, watchdog_interval_s
 from navd.daemon.sinks import (
     MAV_STATE_ACTIVE,
     MAV_STATE_CRITICAL,
+    MAV_STATE_EMERGENCY,
+    MAV_STATE_POWEROFF,
     MAV_STATE_STANDBY,
     AutopilotSink,
     DronecanSink,
@@ -126,6 +129,30 @@ def explain_open_error(key: str, value: object, exc: BaseException) -> str:
 # no sensor-time progress for this long (host time) means the input has stalled
 _STALL_S = 1.0
 
+GNSS_LOST = "coasting (GNSS lost)"
+GNSS_LOCKED_OUT = "coasting (GNSS locked out)"
+NO_OUTPUT = "navigating, no output"
+# What each state means, as HEARTBEAT's system_status and in words (the Zenoh status
+# "health"; docs/daemon.md "Health").  ACTIVE only while solutions aided by GNSS go out;
+# CRITICAL: still navigating, on the IMU alone; EMERGENCY: navd does not do its job.
+HEALTH: dict[str, tuple[int, str, str]] = {
+    "waiting for IMU": (MAV_STATE_STANDBY, "STANDBY", "no IMU data yet; no output"),
+    "initializing": (MAV_STATE_STANDBY, "STANDBY",
+                     "levelling / waiting for agreeing GNSS fixes; no output yet"),
+    "navigating": (MAV_STATE_ACTIVE, "ACTIVE", "solutions go out, GNSS positions fused"),
+    GNSS_LOST: (MAV_STATE_CRITICAL, "CRITICAL",
+                "no GNSS fix for gnss_timeout_s: attitude and position from the IMU alone, "
+                "heading and position drift"),
+    GNSS_LOCKED_OUT: (MAV_STATE_CRITICAL, "CRITICAL",
+                      "GNSS fixes arrive but no position was fused for gnss_timeout_s (the "
+                      "gate refuses them): coasting on the IMU"),
+    NO_OUTPUT: (MAV_STATE_EMERGENCY, "EMERGENCY",
+                "navigating but no solution published (every output failing)"),
+    "stalled": (MAV_STATE_EMERGENCY, "EMERGENCY",
+                "sensor time stopped moving (input stopped): no output"),
+    "stopping": (MAV_STATE_POWEROFF, "POWEROFF", "shutting down"),
+}
+
 
 def warm_up(nav: NavConfig) -> float:
     """Drive a throwaway estimator through 4 s of synthetic straight driving; return seconds.
@@ -203,6 +230,11 @@ class Daemon:
         # (HEARTBEAT ACTIVE) needs outputs actually going out, not just a navigating estimator
         self._output_at = -math.inf
         self._nav_since = -math.inf
+        # sensor times at which a valid GNSS fix last reached the estimator (counter "gnss")
+        # and a GNSS position was last fused ("pos_accepted"); -1: not since this start
+        self._gnss_seen_t_us = -1
+        self._pos_fused_t_us = -1
+        self._gnss_counts = (0, 0)
 
     # -- life cycle ---------------------------------------------------------------------------
 
@@ -489,6 +521,7 @@ class Daemon:
         }
         why = (" (the sensor clock jumped: a sensor or autopilot reboot?)"
                if reason == "reinit_time_jump" else "")
+        self._gnss_seen_t_us = self._pos_fused_t_us = -1  # times of the old clock
         self.rlog.warn("restart", "estimator restarted (%s, %d so far): sensor time %.3f s -> "
                        "%.3f s%s; levelling again, outputs resume when it navigates",
                        reason, est.restarts, t_before_us * 1e-6, t_new_us * 1e-6, why)
@@ -584,39 +617,76 @@ class Daemon:
                                sink.name, exc)
 
     def _log_state_change(self, old: str, new: str) -> str:
-        """Say at once when input stops or resumes, or output stops, rather than in the
-        periodic line up to ``log_period_s`` later; return ``new``."""
+        """Say at once when the state changes (input stops or resumes, output stops, GNSS
+        is lost or refused, navigation starts), rather than in the periodic line up to
+        ``log_period_s`` later; return ``new``."""
         if new == old or new == "stopping":
             return new
         t = self.est.t_us * 1e-6
+        mav = HEALTH[new][1]
         if new == "stalled":
             _log.warning("input stopped: no sensor data for %.1f s (last sensor time %.3f s); "
-                         "no output until it resumes", time.monotonic() - self._progress_at, t)
+                         "no output until it resumes (HEARTBEAT %s)",
+                         time.monotonic() - self._progress_at, t, mav)
+        elif new == NO_OUTPUT:
+            _log.warning("navigating but no solution published for %.1f s (sink errors %d; "
+                         "HEARTBEAT %s)", time.monotonic() - max(self._output_at,
+                                                                  self._nav_since),
+                         self.sink_errors, mav)
+        elif new == GNSS_LOST:
+            _log.warning("GNSS lost: no fix for %.1f s of sensor time (t=%.3f s); coasting on "
+                         "the IMU, heading and position drift (HEARTBEAT %s)",
+                         (self.est.t_us - self._gnss_seen_t_us) * 1e-6, t, mav)
+        elif new == GNSS_LOCKED_OUT:
+            c = self.est.counters
+            refused = {k: v for k, v in c.items() if k.endswith("_rejected") and v}
+            _log.warning("GNSS locked out: fixes arrive but no position was fused for %.1f s "
+                         "(t=%.3f s; refusals so far %s); coasting on the IMU until they fit "
+                         "or the lock-out recovery resets to them (HEARTBEAT %s)",
+                         (self.est.t_us - self._pos_fused_t_us) * 1e-6, t, refused, mav)
         elif old == "stalled":
-            _log.info("input resumed (sensor time %.3f s): %s", t, new)
-        elif new == "navigating, no output":
-            _log.warning("navigating but no solution published for %.1f s (sink errors %d)",
-                         time.monotonic() - max(self._output_at, self._nav_since),
-                         self.sink_errors)
-        elif old == "navigating, no output" and new == "navigating":
-            _log.info("output resumed")
+            _log.info("input resumed (sensor time %.3f s): %s (HEARTBEAT %s)", t, new, mav)
+        elif old in (GNSS_LOST, GNSS_LOCKED_OUT) and new == "navigating":
+            _log.info("GNSS fused again at sensor time %.3f s: navigating (HEARTBEAT %s)",
+                      t, mav)
+        elif old == NO_OUTPUT and new == "navigating":
+            _log.info("output resumed (HEARTBEAT %s)", mav)
+        else:
+            _log.info("state: %s -> %s at sensor time %.3f s (HEARTBEAT %s)", old, new, t,
+                      mav)
         return new
 
     async def _watchdog_loop(self, timeout_s: float) -> None:
         loop = asyncio.get_running_loop()
         period = timeout_s / 2.0
         last = self.est.t_us
+        last_tick = time.monotonic()
         deadline = loop.time()
         while True:
             deadline += period
             await asyncio.sleep(max(0.0, deadline - loop.time()))
             t = self.est.t_us
-            if t != last:
+            why = self._watchdog_withheld(t != last, last_tick)
+            if not why:
                 self.notifier.watchdog()
             else:
-                self.rlog.warn("stalled", "no sensor-time progress for %.1f s (t_us=%d): "
-                               "withholding WATCHDOG=1", period, t)
+                self.rlog.warn("watchdog", "withholding WATCHDOG=1: %s (t_us=%d, state %s)",
+                               why, t, self.state())
             last = t
+            last_tick = time.monotonic()
+
+    def _watchdog_withheld(self, sensor_moved: bool, since: float) -> str:
+        """Why WATCHDOG=1 must not be sent for the tick that began at host time ``since``
+        ('' to send it): only while outputs are actually produced (or, before navigation,
+        while IMU data flows into levelling)."""
+        if not sensor_moved:
+            return "no sensor-time progress since the last tick"
+        state = self.state()
+        if state in (NO_OUTPUT, "stalled"):
+            return state
+        if self.est.initialized and self.sinks and self._output_at < since:
+            return "no solution published since the last tick"
+        return ""
 
     # -- status -------------------------------------------------------------------------------
 
@@ -627,12 +697,14 @@ class Daemon:
             self._progress_at = now
         t_prev, imu_prev, gnss_prev = self._rate_prev
         imu, gnss = self.est.counters.get("imu", 0), self.est.counters.get("gnss", 0)
+        self._note_gnss()
         if now > t_prev:
             self.rates_hz = {"imu": round((imu - imu_prev) / (now - t_prev), 1),
                              "gnss": round((gnss - gnss_prev) / (now - t_prev), 1)}
         self._rate_prev = (now, imu, gnss)
 
     def state(self) -> str:
+        """The daemon's state; :data:`HEALTH` says what each one means."""
         if self._stop.is_set():
             return "stopping"
         if self.est.t_us < 0:
@@ -644,7 +716,31 @@ class Daemon:
         if not self.est.initialized:
             return "initializing"
         if self.sinks and now - max(self._output_at, self._nav_since) > self._output_limit_s():
-            return "navigating, no output"
+            return NO_OUTPUT
+        return self._gnss_state()
+
+    def _note_gnss(self) -> None:
+        """Note the sensor time at which fixes last arrived and positions were last fused
+        (from the estimator's counters, so the per-sample path pays nothing)."""
+        est = self.est
+        now = (est.counters.get("gnss", 0), est.counters.get("pos_accepted", 0))
+        seen, fused = self._gnss_counts
+        if now[0] != seen or self._gnss_seen_t_us < 0 <= est.t_us:
+            self._gnss_seen_t_us = est.t_us
+        if now[1] != fused or self._pos_fused_t_us < 0 <= est.t_us:
+            self._pos_fused_t_us = est.t_us
+        self._gnss_counts = now
+
+    def _gnss_state(self) -> str:
+        """navigating, or coasting for ``gnss_timeout_s`` of sensor time: no valid fix
+        arrived (GNSS lost), or fixes arrive but no position was fused (locked out: the gate
+        refuses them until the lock-out recovery, ``[filter] max_lockout_s``)."""
+        t = self.est.t_us
+        timeout_us = self.cfg.daemon.gnss_timeout * 1e6
+        if 0 <= self._gnss_seen_t_us < t - timeout_us:
+            return GNSS_LOST
+        if 0 <= self._pos_fused_t_us < t - timeout_us:
+            return GNSS_LOCKED_OUT
         return "navigating"
 
     def _output_limit_s(self) -> float:
@@ -654,15 +750,15 @@ class Daemon:
         return max(_STALL_S, 2.0 * slowest_us * 1e-6)
 
     def _mav_state(self) -> int:
-        st = self.state()
-        return (MAV_STATE_ACTIVE if st == "navigating" else
-                MAV_STATE_CRITICAL if st in ("stalled", "navigating, no output") else
-                MAV_STATE_STANDBY)
+        return HEALTH[self.state()][0]
 
     def status(self) -> dict[str, Any]:
         """Everything an operator needs: the Zenoh status payload and the final stats."""
+        state = self.state()
+        mav, mav_name, meaning = HEALTH[state]
         out: dict[str, Any] = {
-            "state": self.state(),
+            "state": state,
+            "health": {"mav_state": mav_name, "mav_state_id": mav, "meaning": meaning},
             "uptime_s": round(time.monotonic() - self._t0, 1),
             "t_us": self.est.t_us,
             "estimator": {**self.est.status(), **dov_status(self.est)},

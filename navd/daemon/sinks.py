@@ -194,6 +194,8 @@ class AutopilotSink(Sink):
 MAV_STATE_STANDBY: int = mavlink.MAV_STATE_STANDBY
 MAV_STATE_ACTIVE: int = mavlink.MAV_STATE_ACTIVE
 MAV_STATE_CRITICAL: int = mavlink.MAV_STATE_CRITICAL
+MAV_STATE_EMERGENCY: int = mavlink.MAV_STATE_EMERGENCY
+MAV_STATE_POWEROFF: int = mavlink.MAV_STATE_POWEROFF
 
 
 class ZenohSink(Sink):
