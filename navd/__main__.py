@@ -11,6 +11,8 @@ _COMMANDS = {
     "demo": ("navd.cli.demo", "simulator -> MAVLink -> daemon -> Zenoh, live errors vs truth"),
     "dov-grid": ("navd.cli.dov_grid", "deflection-of-the-vertical grid from a gravity model"),
     "report": ("navd.cli.report", "HTML evaluation (figures, RMS/percentiles) of a replay"),
+    "warmup": ("navd.cli.warmup", "load or compile the estimator kernels; were the install-"
+                                  "time ones used"),
 }
 
 # top-level module of an optional dependency -> the extra (pyproject.toml) that installs it

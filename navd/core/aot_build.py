@@ -18,11 +18,9 @@ from __future__ import annotations
 
 import argparse
 import ast
-import importlib
 import json
 import math
 import os
-import pkgutil
 import shutil
 import sys
 import tempfile
@@ -128,12 +126,8 @@ def closure_files(disp: Any) -> set[str]:
 def build(out: Path) -> dict[str, Any]:
     """Compile and write the prebuilt kernels to ``out`` (replaced as a whole); the manifest."""
     os.environ["NAVD_AOT"] = "build"
-    import navd.core
     from navd.core import _jit
 
-    for mod in pkgutil.walk_packages(navd.core.__path__, "navd.core."):
-        if mod.name != __name__:
-            importlib.import_module(mod.name)
     t0 = time.perf_counter()
     _exercise()
     t_compile = time.perf_counter() - t0

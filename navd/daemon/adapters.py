@@ -6,14 +6,18 @@ uses both, translates: SI section attributes in, each adapter's own settings dat
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from navd.config import ConfigError
 from navd.config.daemon import DronecanSection, MavlinkSection, ZenohSection
 from navd.core.plausible import Limits
-from navd.io.dronecan import DronecanConfig
 from navd.io.mavlink import MavlinkInputConfig
 from navd.io.mavlink.signing import load_signing_key
 from navd.io.zenoh import ZenohConfig
 from navd.io.zenoh_security import read_password, read_usernames
+
+if TYPE_CHECKING:
+    from navd.io.dronecan import DronecanConfig
 
 __all__ = ["dronecan_bus_config", "mavlink_input_config", "zenoh_session_config"]
 
@@ -50,6 +54,10 @@ def mavlink_input_config(m: MavlinkSection, limits: Limits | None = None, *,
 def dronecan_bus_config(d: DronecanSection, limits: Limits | None = None, *,
                         warn_interval_s: float = 5.0) -> DronecanConfig:
     """``limits``, ``warn_interval_s``: as for :func:`mavlink_input_config`."""
+    # imported here: the dronecan package parses its DSDL when imported (~0.1 s of every
+    # start, 0.4 s on a Pi), which only a daemon with DroneCAN configured needs (issue 18)
+    from navd.io.dronecan import DronecanConfig
+
     return DronecanConfig(
         limits=limits or Limits(),
         interface=d.interface,

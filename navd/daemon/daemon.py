@@ -38,6 +38,7 @@ from typing import Any
 from navd.config import ConfigError
 from navd.config.aiding import NavConfig
 from navd.config.daemon import DaemonConfig
+from navd.core._jit import aot_status, describe_status
 from navd.core.aiding.dov import dov_status
 from navd.core.clock_guard import ClockGuard
 from navd.daemon import bias_store
@@ -60,8 +61,6 @@ from navd.daemon.sinks import (
 from navd.daemon.sources import InputOpenError, SampleQueue, Sources
 from navd.diag import RateLimitedLog
 from navd.io.common import Sample
-from navd.io.dronecan import DronecanEncoder
-from navd.io.foxglove_mcap import NavMcapWriter
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink
 from navd.io.mavlink.autopilot import AutopilotPolicy, HeadingResetSchedule
 from navd.io.recording import RecordingError, RecordingWriter
@@ -250,6 +249,9 @@ class Daemon:
     async def run(self) -> int:
         if self.cfg.daemon.warm_up:
             _log.info("estimator kernels ready in %.1f s", warm_up(self.cfg.nav))
+            kernels = aot_status()  # prebuilt at install, or compiled now (stale, absent)
+            _log.log(logging.WARNING if kernels["state"] == "stale" else logging.INFO, "%s",
+                     describe_status(kernels))
         try:
             inputs = await self._open()
         except StartupError as exc:  # says which setting and what to do
@@ -335,6 +337,8 @@ class Daemon:
             sinks.append(self.autopilot_sink)
         d = c.dronecan
         if d.enabled and d.solution_out and self.sources.dronecan is not None:
+            from navd.io.dronecan import DronecanEncoder  # only with DroneCAN (sources.py)
+
             sinks.append(DronecanSink(self.sources.dronecan, DronecanEncoder(d.node_id),
                                       d.solution_rate))
         if self.zenoh_sink is not None:
@@ -343,6 +347,8 @@ class Daemon:
                 sinks.append(Ros2Sink(self.zenoh_sink.publisher.session, c.ros2,
                                       c.nav.estimator.init.aligned_sd))
         if self.mcap_path:
+            from navd.io.foxglove_mcap import NavMcapWriter  # mcap only with --mcap (issue 18)
+
             try:
                 writer = NavMcapWriter(self.mcap_path, aligned_sd_rad=c.nav.estimator.init
                                        .aligned_sd, status=True)

@@ -21,7 +21,6 @@ from typing import TYPE_CHECKING, Any, Protocol
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from navd.diag import Counters, RateLimitedLog
-from navd.io.dronecan import DronecanEncoder, DronecanLink
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink, MavlinkSender
 from navd.io.mavlink.autopilot import (
     AutopilotPolicy,
@@ -35,6 +34,7 @@ from navd.types import NavSolution
 
 if TYPE_CHECKING:
     from navd.config.daemon import Ros2Section
+    from navd.io.dronecan import DronecanEncoder, DronecanLink
 
 __all__ = [
     "AutopilotSink",

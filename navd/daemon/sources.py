@@ -24,15 +24,17 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from typing import Any, ClassVar, Generic, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, TypeVar
 
 from navd.config.daemon import DaemonConfig
 from navd.core.plausible import Limits
 from navd.daemon.adapters import dronecan_bus_config, mavlink_input_config
 from navd.diag import RateLimitedLog
 from navd.io.common import Sample, SampleCallback
-from navd.io.dronecan import DronecanDecoder, DronecanLink
 from navd.io.mavlink import MavlinkDecoder, MavlinkLink
+
+if TYPE_CHECKING:  # imported when DroneCAN is opened (see adapters.dronecan_bus_config)
+    from navd.io.dronecan import DronecanDecoder, DronecanLink
 
 __all__ = [
     "INPUT_KINDS",
@@ -109,8 +111,8 @@ class SampleQueue:
         return self._q.qsize()
 
 
-DecoderT = TypeVar("DecoderT", MavlinkDecoder, DronecanDecoder)
-LinkT = TypeVar("LinkT", MavlinkLink, DronecanLink)
+DecoderT = TypeVar("DecoderT", MavlinkDecoder, "DronecanDecoder")
+LinkT = TypeVar("LinkT", MavlinkLink, "DronecanLink")
 
 
 def _queueing(queue: SampleQueue) -> tuple[ReceiveClock, SampleCallback]:
@@ -208,7 +210,7 @@ class MavlinkInput(_DecodingInput[MavlinkDecoder, MavlinkLink]):
             self.link.close()
 
 
-class DronecanInput(_DecodingInput[DronecanDecoder, DronecanLink]):
+class DronecanInput(_DecodingInput["DronecanDecoder", "DronecanLink"]):
     """``[dronecan]``: a python-can bus; the DroneCAN sink sends on the same bus."""
 
     kind: ClassVar[str] = "dronecan"
@@ -221,6 +223,8 @@ class DronecanInput(_DecodingInput[DronecanDecoder, DronecanLink]):
     async def open(self, queue: SampleQueue) -> str:
         d = self.cfg.dronecan
         clock, on_sample = _queueing(queue)
+        from navd.io.dronecan import DronecanDecoder, DronecanLink
+
         bus_cfg = dronecan_bus_config(d, Limits.from_config(self.cfg.estimator.imu),
                                       warn_interval_s=self.cfg.daemon.warn_interval)
         self.decoder = DronecanDecoder(bus_cfg)
