@@ -36,7 +36,10 @@ to aligned, heading vs the onboard (magnetometer-aided) yaw over aligned in-flig
 roll/pitch vs onboard in flight.  The onboard attitude is an estimate, not truth.
 
     python benchmarks/yaw_bank.py [--seeds 100] [--scenarios a,b] [--real] [--json PATH]
-                                  [--jobs 2]
+                                  [--jobs 2] [--set SCENARIO_KEY=V] [--config NAVD_KEY=V]
+
+``--config`` runs a non-default navd config (e.g. ``yaw_bank.enabled=auto`` while the bank is
+off by default); the printed title then says "NOT the default config" and lists it.
 """
 
 from __future__ import annotations
@@ -164,14 +167,16 @@ def seed_result(name: str, seed: int, run: SimRun, res: rb.RunResult) -> SeedRes
                       counters)
 
 
-def run_seed(name: str, seed: int, overrides: Mapping[str, Any] | None = None) -> SeedResult:
-    """Generate seed ``seed`` of scenario ``name`` and score the default-config estimator."""
+def run_seed(name: str, seed: int, overrides: Mapping[str, Any] | None = None,
+             config: Sequence[str] = ()) -> SeedResult:
+    """Generate seed ``seed`` of scenario ``name`` (scenario ``overrides``) and score the
+    estimator: the default config, plus ``config`` navd overrides (``key=value``) if any."""
     sc = next(s for s in SCENARIOS if s.name == name)
     run = generate(load_scenario(name, dict(overrides or {})), seed=seed)
-    return seed_result(name, seed, run, rb.score_sim(run, sc.profile))
+    return seed_result(name, seed, run, rb.score_sim(run, sc.profile, tuple(config)))
 
 
-def _job(args: tuple[str, int, dict[str, Any]]) -> SeedResult:
+def _job(args: tuple[str, int, dict[str, Any], tuple[str, ...]]) -> SeedResult:
     return run_seed(*args)
 
 
@@ -275,9 +280,9 @@ def gnss_manoeuvre_s(t_us: npt.NDArray[np.int64], vel_ne: Arr, after_us: int,
     return int(t_mid[hit[0]]) if hit.size else -1
 
 
-def score_real(spec: rb.RealLog) -> dict[str, Any]:
-    """Replay one real log with the default config and its profile; the row (``reason`` when
-    there are no figures)."""
+def score_real(spec: rb.RealLog, config: Sequence[str] = ()) -> dict[str, Any]:
+    """Replay one real log with the default config (plus ``config`` overrides) and its
+    profile; the row (``reason`` when there are no figures)."""
     from navd.io.logs import LogFormatError, LogOptions, read_log
 
     rec: dict[str, Any] = {"log": spec.name, "path": str(spec.path), "profile": spec.profile}
@@ -286,7 +291,7 @@ def score_real(spec: rb.RealLog) -> dict[str, Any]:
     except (OSError, LogFormatError, ValueError) as exc:
         rec["reason"] = f"cannot read: {exc}"
         return rec
-    est = build_estimator(load_config(None, [f"filter.profile={spec.profile}"]))
+    est = build_estimator(load_config(None, [f"filter.profile={spec.profile}", *config]))
     rows = [(s.t_us, s.roll_rad, s.pitch_rad, s.yaw_rad, *s.att_sd_rad, float(s.heading_aligned))
             for s in solutions(est, data.samples(), 10.0)]
     rec["counters"] = {k: v for k, v in est.counters.items() if v}
@@ -332,8 +337,9 @@ def score_real(spec: rb.RealLog) -> dict[str, Any]:
     return rec
 
 
-def _real_job(name: str) -> dict[str, Any]:
-    return score_real(next(r for r in rb.REAL_LOGS if r.name == name))
+def _real_job(args: tuple[str, tuple[str, ...]]) -> dict[str, Any]:
+    name, config = args
+    return score_real(next(r for r in rb.REAL_LOGS if r.name == name), config)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -382,12 +388,13 @@ def format_real(rec: Mapping[str, Any]) -> str:
 
 
 def run_all(names: Sequence[str], seeds: int, jobs: int, real: bool,
-            overrides: Mapping[str, Any] | None = None
+            overrides: Mapping[str, Any] | None = None, config: Sequence[str] = ()
             ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, list[SeedResult]]]:
     """Every seed of every scenario named, and the real logs if asked; rows, real rows and
     the per-seed results."""
-    work = [(n, s, dict(overrides or {})) for n in names for s in range(1, seeds + 1)]
-    logs = [r.name for r in rb.REAL_LOGS] if real else []
+    cfg = tuple(config)
+    work = [(n, s, dict(overrides or {}), cfg) for n in names for s in range(1, seeds + 1)]
+    logs = [(r.name, cfg) for r in rb.REAL_LOGS] if real else []
     if jobs <= 1:
         out = [_job(w) for w in work]
         real_out = [_real_job(n) for n in logs]
@@ -412,6 +419,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="scenario override for every seed (e.g. duration_s=60)")
+    ap.add_argument("--config", action="append", default=[], metavar="KEY=VALUE",
+                    help="navd config override (e.g. yaw_bank.enabled=auto): the run is then "
+                         "NOT the default config, and the output says so")
     a = ap.parse_args(argv)
     known = [s.name for s in SCENARIOS]
     names = known if not a.scenarios else [n.strip() for n in a.scenarios.split(",")
@@ -421,12 +431,28 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"unknown scenario(s) {bad}; known: {', '.join(known)}")
     if a.seeds < 1:
         ap.error("--seeds must be >= 1")
+    from firmware_sim import ScenarioError
     from firmware_sim.__main__ import parse_set
 
-    overrides = parse_set(a.set)
+    try:
+        overrides = parse_set(a.set)
+        for n in names:  # a bad scenario override fails here, not in every worker
+            load_scenario(n, overrides)
+    except ScenarioError as exc:
+        ap.error(f"--set: {exc}")
     t_start = time.perf_counter()
-    rows, real_rows, per = run_all(names, a.seeds, max(1, a.jobs), a.real, overrides)
-    print(f"issue-15 yaw from motion: DEFAULT config + natural profile, seeds 1..{a.seeds}; "
+    from navd.config import ConfigError
+
+    try:
+        # a bad key or value fails here, before any work
+        build_estimator(load_config(None, ["filter.profile=multirotor", *a.config]))
+    except ConfigError as exc:
+        ap.error(f"--config: {exc}")
+    rows, real_rows, per = run_all(names, a.seeds, max(1, a.jobs), a.real, overrides,
+                                   a.config)
+    what = ("DEFAULT config" if not a.config
+            else "NOT the default config: " + " ".join(a.config) + ",")
+    print(f"issue-15 yaw from motion: {what} + natural profile, seeds 1..{a.seeds}; "
           f"t_align from first |a_h| >= {MANOEUVRE_MPS2:g} m/s^2, s; deg; %")
     print(HEADER)
     print("-" * len(HEADER))
@@ -446,7 +472,8 @@ def main(argv: list[str] | None = None) -> int:
             print(format_real(rec))
     print(f"({time.perf_counter() - t_start:.0f} s)")
     if a.json:
-        doc = {"seeds": a.seeds, "overrides": overrides, "scenarios": rows,
+        doc = {"seeds": a.seeds, "overrides": overrides, "config": list(a.config),
+               "scenarios": rows,
                "per_seed": {n: [r.summary() for r in v] for n, v in per.items()},
                "real": real_rows}
         with open(a.json, "w") as fh:

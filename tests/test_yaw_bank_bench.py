@@ -130,3 +130,24 @@ def test_short_end_to_end(b: ModuleType, tmp_path: Path, capsys: pytest.CaptureF
     rec = doc["per_seed"]["multirotor_manoeuvre"][0]
     assert rec["aligned_instants"] == one.hdg_err_deg.size
     assert rec["t_manoeuvre_s"] == pytest.approx(31.25, abs=0.006)
+
+
+def test_config_override_is_announced(b: ModuleType, capsys: pytest.CaptureFixture[str]
+                                      ) -> None:
+    """GIVEN the benchmark asked for a non-default navd config,
+    WHEN it runs one 35 s hover seed with --config init.heading_sd_deg=90 (a real key), and
+    again with a key the [yaw_bank] section does not have,
+    THEN the title says "NOT the default config" and names the override, and the unknown key
+    is a usage error (exit 2) before any run, as is an unknown scenario key in --set."""
+    assert b.main(["--seeds", "1", "--jobs", "1", "--scenarios", "hover_only",
+                   "--set", "duration_s=35", "--config", "init.heading_sd_deg=90"]) == 0
+    out = capsys.readouterr().out
+    assert "NOT the default config: init.heading_sd_deg=90" in out
+    with pytest.raises(SystemExit) as ex:
+        b.main(["--seeds", "1", "--jobs", "1", "--scenarios", "hover_only",
+                "--set", "duration_s=35", "--config", "yaw_bank.nosuch=1"])
+    assert ex.value.code == 2
+    with pytest.raises(SystemExit) as ex:
+        b.main(["--seeds", "1", "--jobs", "1", "--scenarios", "hover_only",
+                "--set", "trajectory.nosuch=1"])
+    assert ex.value.code == 2
