@@ -34,6 +34,10 @@ the in-flight instants, % of instants with
 gives no navigation solution, prints its reason instead of numbers.
 
     python benchmarks/robustness.py [--json PATH] [--cases a,b,...] [--seeds N] [--jobs N]
+                                    [--set section.key=value ...]
+
+``--set`` changes every case's config (experiments only: the judged figures use none, and
+the table's title says when some were given).
     python benchmarks/robustness.py --list
 """
 
@@ -457,8 +461,9 @@ def reference_errors(t_us: npt.NDArray[np.int64], angles_rad: Arr,
     return err, near
 
 
-def score_log(spec: RealLog) -> dict[str, Any]:
-    """Replay one real log with the default config; a row dict (``reason`` when no figures)."""
+def score_log(spec: RealLog, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
+    """Replay one real log with the default config (plus ``overrides``: experiments); a row
+    dict (``reason`` when no figures)."""
     from navd.io.logs import LogFormatError, LogOptions, read_log
 
     rec: dict[str, Any] = {"case": spec.name, "what": str(spec.path), "profile": spec.profile,
@@ -468,7 +473,7 @@ def score_log(spec: RealLog) -> dict[str, Any]:
     except (OSError, LogFormatError, ValueError) as exc:
         rec["reason"] = f"cannot read: {exc}"
         return rec
-    est = build_estimator(load_config(None, [f"filter.profile={spec.profile}"]))
+    est = build_estimator(load_config(None, [f"filter.profile={spec.profile}", *overrides]))
     g = GnssOutcomes()
     rows = []
     for sol in solutions(est, tap_gnss(est, data.samples(), g), 50.0):
@@ -513,15 +518,16 @@ def score_log(spec: RealLog) -> dict[str, Any]:
 # driver
 # ---------------------------------------------------------------------------------------------
 
-def _sim_job(args: tuple[str, int]) -> tuple[str, int, RunResult]:
-    name, seed = args
+def _sim_job(args: tuple[str, int, tuple[str, ...]]) -> tuple[str, int, RunResult]:
+    name, seed, overrides = args
     case = next(c for c in CASES if c.name == name)
     run = generate(load_scenario(case.scenario, dict(case.overrides)), seed=seed)
-    return name, seed, score_sim(run, case.profile)
+    return name, seed, score_sim(run, case.profile, overrides)
 
 
-def _log_job(name: str) -> dict[str, Any]:
-    return score_log(next(r for r in REAL_LOGS if r.name == name))
+def _log_job(args: tuple[str, tuple[str, ...]]) -> dict[str, Any]:
+    name, overrides = args
+    return score_log(next(r for r in REAL_LOGS if r.name == name), overrides)
 
 
 def _f(x: float, fmt: str) -> str:
@@ -556,6 +562,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=5, help="Monte Carlo seeds 1..N (default 5)")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     ap.add_argument("--list", action="store_true", help="list the cases and exit")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="config override for every case (experiments, not the judged figures)")
     a = ap.parse_args(argv)
     if a.list:
         for c in CASES:
@@ -572,9 +580,10 @@ def main(argv: list[str] | None = None) -> int:
     sims = [c for c in CASES if c.name in chosen]
     logs = [r.name for r in REAL_LOGS if r.name in chosen]
     t_start = time.perf_counter()
-    jobs = [(c.name, s) for c in sims for s in range(1, a.seeds + 1)]
+    ov = tuple(a.set)
+    jobs = [(c.name, s, ov) for c in sims for s in range(1, a.seeds + 1)]
     with multiprocessing.get_context("spawn").Pool(max(1, a.jobs)) as pool:
-        log_async = pool.map_async(_log_job, logs)
+        log_async = pool.map_async(_log_job, [(n, ov) for n in logs])
         sim_out = pool.map(_sim_job, jobs, chunksize=1)
         log_out = log_async.get()
     records: list[dict[str, Any]] = []
@@ -586,7 +595,8 @@ def main(argv: list[str] | None = None) -> int:
         rec.update(row_figures(res, c.target))
         records.append(rec)
     records.extend(log_out)
-    print(f"issue-14 robustness baseline: DEFAULT config + natural profile; simulated cases "
+    cfg_text = ("DEFAULT config" if not ov else "default config WITH " + " ".join(ov))
+    print(f"issue-14 robustness: {cfg_text} + natural profile; simulated cases "
           f"pooled over seeds 1..{a.seeds}; deg, %, s")
     print(HEADER)
     print("-" * len(HEADER))

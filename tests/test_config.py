@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import tomllib
 from dataclasses import fields
 from pathlib import Path
@@ -28,8 +29,12 @@ def test_every_key_documented_and_file_matches_defaults() -> None:
     WHEN its keys are compared with every estimator config field (with its unit suffix) and the
     file is loaded,
     THEN every field is documented there and the file reproduces the built-in defaults."""
-    doc = tomllib.loads((ROOT / "config" / "navd.toml").read_text())
+    text = (ROOT / "config" / "navd.toml").read_text()
+    doc = tomllib.loads(text)
     documented = {f"{s}.{k}" for s, t in doc.items() if isinstance(t, dict) for k in t}
+    # the [imu] grade's figures are documented as commented-out keys (written, they would
+    # override the grade)
+    documented |= {f"imu.{k}" for k in re.findall(r"^# (\w+) = ", text, re.M)}
     assert _keys(EstimatorConfig()) <= documented
     # the shipped file reproduces the built-in defaults
     assert EstimatorConfig.from_dict(doc) == EstimatorConfig()
@@ -100,3 +105,39 @@ def test_unknown_keys_give_one_style_of_error(override: str) -> None:
     assert msg.startswith(f"[{section}] unknown key {key!r}; expected one of: "), msg
     if section != "dov":
         assert "max_imu_gap_ms" in msg or "status_period_s" in msg, msg
+
+
+@pytest.mark.parametrize("grade", ["consumer", "industrial", "tactical"])
+def test_imu_grade_sets_its_figures_and_written_keys_override_them(grade: str) -> None:
+    """GIVEN [imu] grade = <grade> alone, and the same with gyro_bias_sd_deg_per_h = 7,
+    THEN the six noise/bias figures are the grade's (in SI), except the written key, which
+    wins; the shipped file's commented figures are the grades' own."""
+    from navd.config.estimator import IMU_GRADES
+
+    preset = IMU_GRADES[grade]
+    c = EstimatorConfig.from_dict(load_config(None, [f"imu.grade={grade}"])).imu
+    assert c.grade == grade
+    assert c.gyro_arw == pytest.approx(preset["gyro_arw_deg_per_sqrt_h"] * math.pi / 180 / 60)
+    assert c.accel_vrw == pytest.approx(preset["accel_vrw_mps_per_sqrt_s"])
+    assert c.gyro_bias_sd == pytest.approx(preset["gyro_bias_sd_deg_per_h"] * math.pi / 180
+                                           / 3600)
+    assert c.accel_bias_sd == pytest.approx(preset["accel_bias_sd_mg"] * 9.80665e-3)
+    assert c.gyro_bias_rw == pytest.approx(
+        preset["gyro_bias_rw_deg_per_h_per_sqrt_h"] * math.pi / 180 / 3600 / 60)
+    assert c.accel_bias_rw == pytest.approx(preset["accel_bias_rw_mps2_per_sqrt_s"])
+    o = EstimatorConfig.from_dict(load_config(None, [
+        f"imu.grade={grade}", "imu.gyro_bias_sd_deg_per_h=7"])).imu
+    assert o.gyro_bias_sd == pytest.approx(7 * math.pi / 180 / 3600)
+    assert o.gyro_arw == c.gyro_arw
+    text = (ROOT / "config" / "navd.toml").read_text()
+    for key, value in preset.items():
+        line = re.search(rf"^# {key} = .*$", text, re.M)
+        assert line is not None, key
+        k = list(IMU_GRADES).index(grade)
+        listed = line.group(0).split(":")[-1].split("/")[k]
+        assert float(listed.split("(")[0]) == pytest.approx(value), key
+
+
+def test_unknown_imu_grade_is_refused_with_the_choices() -> None:
+    with pytest.raises(ConfigError, match="grade.*consumer"):
+        EstimatorConfig.from_dict(load_config(None, ["imu.grade=automotive"]))

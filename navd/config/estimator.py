@@ -36,21 +36,69 @@ class FilterSection:
         check(self.cov_interval > 0.0, "filter", "cov_interval_ms", "> 0")
 
 
+# [imu] grade presets, in the units of their TOML keys (as a user writes them).  A user who
+# does not know the IMU's Allan variance picks a grade; any of these keys written in [imu]
+# overrides the preset's value.  Figures (1-sigma / densities):
+#  consumer    uncalibrated MEMS as autopilots and phones carry them (MPU-6000, ICM-426xx,
+#              BMI088): turn-on gyro offsets of 0.3-1 deg/s and accelerometer offsets of
+#              20-50 mg must lie inside the prior (0.5 deg/s, 30 mg: 1-2 sigma); datasheet
+#              ARW 0.2-0.8 deg/sqrt(h); VRW raised to 0.3 m/s/sqrt(s) for vehicle vibration;
+#              bias drifts with temperature (random walks 5 deg/h/sqrt(h), 1e-4 m/s^2/sqrt(s))
+#  industrial  calibrated MEMS modules: seed 001's figures (12 deg/h, 5 mg, 0.24 deg/sqrt(h),
+#              0.3 m/s/sqrt(s) as printed), navd's defaults before the presets existed
+#  tactical    high-end MEMS / FOG (STIM300-, KVH-class): 3 deg/h, 1 mg, 0.15 deg/sqrt(h),
+#              0.02 m/s/sqrt(s) (vibration allowance over the datasheet's ~0.001)
+IMU_GRADES: dict[str, dict[str, float]] = {
+    "consumer": {
+        "gyro_arw_deg_per_sqrt_h": 0.5, "accel_vrw_mps_per_sqrt_s": 0.3,
+        "gyro_bias_sd_deg_per_h": 1800.0, "accel_bias_sd_mg": 30.0,
+        "gyro_bias_rw_deg_per_h_per_sqrt_h": 5.0, "accel_bias_rw_mps2_per_sqrt_s": 1e-4,
+    },
+    "industrial": {
+        "gyro_arw_deg_per_sqrt_h": 0.24, "accel_vrw_mps_per_sqrt_s": 0.3,
+        "gyro_bias_sd_deg_per_h": 12.0, "accel_bias_sd_mg": 5.0,
+        "gyro_bias_rw_deg_per_h_per_sqrt_h": 0.1, "accel_bias_rw_mps2_per_sqrt_s": 1e-5,
+    },
+    "tactical": {
+        "gyro_arw_deg_per_sqrt_h": 0.15, "accel_vrw_mps_per_sqrt_s": 0.02,
+        "gyro_bias_sd_deg_per_h": 3.0, "accel_bias_sd_mg": 1.0,
+        "gyro_bias_rw_deg_per_h_per_sqrt_h": 0.01, "accel_bias_rw_mps2_per_sqrt_s": 1e-6,
+    },
+}
+DEFAULT_IMU_GRADE = "consumer"
+_GR = IMU_GRADES[DEFAULT_IMU_GRADE]
+
+
+def imu_table_with_grade(table: Any) -> Any:
+    """The ``[imu]`` table with the keys it does not write filled from its ``grade`` (or the
+    default grade); anything that is not a table, or an unknown grade, is returned as it is
+    for :func:`build_section` to refuse with its usual message."""
+    if not isinstance(table, dict):
+        return table
+    preset = IMU_GRADES.get(table.get("grade", DEFAULT_IMU_GRADE))
+    if preset is None:
+        return table
+    return {**preset, **table}
+
+
 @dataclass(frozen=True)
 class ImuSection:
-    gyro_arw: float = _f(0.24, "deg_per_sqrt_h")
-    accel_vrw: float = _f(0.3, "mps_per_sqrt_s")
-    gyro_bias_sd: float = _f(12.0, "deg_per_h")
-    accel_bias_sd: float = _f(5.0, "mg")
+    # preset for the six noise/bias figures below (IMU_GRADES); explicit keys override it.
+    # The field defaults are the default grade's.
+    grade: str = _f(DEFAULT_IMU_GRADE, choices=tuple(IMU_GRADES))
+    gyro_arw: float = _f(_GR["gyro_arw_deg_per_sqrt_h"], "deg_per_sqrt_h")
+    accel_vrw: float = _f(_GR["accel_vrw_mps_per_sqrt_s"], "mps_per_sqrt_s")
+    gyro_bias_sd: float = _f(_GR["gyro_bias_sd_deg_per_h"], "deg_per_h")
+    accel_bias_sd: float = _f(_GR["accel_bias_sd_mg"], "mg")
     # known biases (measured = true + bias, body FRD): a calibration's offsets or biases
     # learned on an earlier run; the initial estimate, with gyro/accel_bias_sd its 1-sigma
     gyro_bias: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "deg_per_h")
     accel_bias: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "mg")
-    gyro_bias_rw: float = _f(0.1, "deg_per_h_per_sqrt_h")
-    accel_bias_rw: float = _f(1e-5, "mps2_per_sqrt_s")
+    gyro_bias_rw: float = _f(_GR["gyro_bias_rw_deg_per_h_per_sqrt_h"], "deg_per_h_per_sqrt_h")
+    accel_bias_rw: float = _f(_GR["accel_bias_rw_mps2_per_sqrt_s"], "mps2_per_sqrt_s")
     max_accel: float = _f(50.0 * G0, "mps2")
     max_rate: float = _f(2000.0, "dps")
-    # at rest (IMU still over 5 s, Allan-type test), measure the gyro offset and feed it to
+    # at rest (IMU still over 10 s, Allan-type test), measure the gyro offset and feed it to
     # the gyro-bias state, as autopilots calibrate at boot (navd/core/aiding/gyro_rest.py)
     rest_calibration: bool = _f(True)
 
@@ -177,6 +225,7 @@ class EstimatorConfig:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> EstimatorConfig:
         hints = typing.get_type_hints(cls)
+        data = {**data, "imu": imu_table_with_grade(data.get("imu", {}))}
         kw: dict[str, Any] = {f.name: build_section(hints[f.name], f.name, data[f.name])
                               for f in fields(cls) if f.name in data}
         return cls(**kw)

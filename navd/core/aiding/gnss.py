@@ -65,10 +65,13 @@ class GnssAiding:
                               and c.imu.gyro_bias_sd > OMEGA_IE * _GYROCOMPASS_USELESS_RAD)
         self.hold = -1  # consider-state index of this epoch's updates, -1: none
         self._absurd_in_row = 0
+        # horizontal speed of the last fix that had one, m/s (inf: none yet)
+        self.last_speed_h = math.inf
 
     def reset(self) -> None:
         self.hold = -1
         self._absurd_in_row = 0
+        self.last_speed_h = math.inf
         self.course.reset()
         self.recovery.reset()
         if self._mctls is not None:
@@ -115,6 +118,8 @@ class GnssAiding:
             return False
         self._absurd_in_row = 0
         has_vel_h = math.isfinite(g.vel_n) and math.isfinite(g.vel_e)
+        if has_vel_h:
+            self.last_speed_h = math.hypot(g.vel_n, g.vel_e)
         yb = est.yaw_bank
         self.hold = (_YAW if has_vel_h and (self._heading_hold(est, g)
                                             or (yb is not None and yb.holds_heading(est)))

@@ -15,18 +15,32 @@ Stillness.  "At rest" is decided from the IMU itself, over windows of ``_WINDOW_
   scatter no more than the noise inside the windows allows (an Allan-variance test at one
   window length: sum over axes and windows of (mean_k - grand mean)^2 / (s^2 / n), which is
   chi-square with 3 (K - 1) degrees of freedom for a still sensor; refused above its
-  ``_STILL_PROB`` quantile).  A platform that sways (a boat at anchor, a vehicle rocked by
-  wind or by people stepping in) turns back and forth: its window mean rates and its tilt
-  (hence mean specific force) change from window to window far more than white noise does,
-  so it fails the test even when each window looks quiet.  Vibration much faster than a
-  window raises the noise inside the windows as much as it moves their means, so an idling
-  engine still counts as rest;
-* while navigating, the filter's horizontal speed is below ``_MAX_SPEED_MPS`` (a steady turn
-  at constant speed has constant rate and specific force: it would pass the IMU tests).
+  ``_STILL_PROB`` quantile), and no axis shows a trend across the windows (squared
+  least-squares slope over its variance, chi-square with 1 dof).  s^2 is the windows' own
+  sample variance, never the configured noise: a config that overstates the accelerometer
+  noise, as vibration allowances do, would blind the test.  A platform that sways (a boat
+  at anchor, a vehicle rocked by wind or by people stepping in) turns back and forth: its
+  window mean rates and its tilt (hence mean specific force) drift from window to window
+  far more than white noise does, so it fails even when each window looks quiet.  Vibration
+  much faster than a window raises the noise inside the windows as much as it moves their
+  means, so an idling engine still counts as rest;
+* while navigating, the last GNSS fix's or the filter's horizontal speed is below
+  ``_MAX_SPEED_MPS`` (a steady turn at constant speed has constant rate and specific force:
+  it would pass the IMU tests; the fix counts alone because a filter that an uncalibrated
+  gyro has already driven off is the one that needs the calibration).
+
+A measurement is made from every ``_WINDOWS`` still windows (10 s), and from a shorter still
+run of at least ``_MIN_WINDOWS`` + 1 that motion ends (a stop at traffic lights, a quad
+carried between short rests), less its last window, in which the motion may have begun.  A
+sway never ends a run that way: it stays within the gross limits.
 
 Not caught: a platform turning in place at a steady rate below ``static_rate_tol_dps`` with
 no other motion (a robot spinning slowly on the spot).  Its rate is taken for offset; the
 chi-square gate below refuses it once the bias is known better than that rate.
+
+Still, a sway much slower than the 10 s test looks like an offset near its rate extremum when
+the accelerometer is too noisy to see the tilt change; the gate below refuses such a reading
+once the bias is known, and the reset needs two refusals in a row that agree.
 
 Measurement.  The mean raw rate over the K windows, r (body FRD, rad/s), is offset plus the
 earth rate seen in the body, ``r = b_g + C^T w_ie^n + noise``.  Computed - measured, with the
@@ -38,16 +52,18 @@ error conventions of docs/design.md §2 (``C_hat = Exp(-phi) C``, ``db = b - b_h
 so the heading uncertainty of an unaligned filter (the horizontal earth rate, ~12 deg/h,
 depends on it) enters through P rather than by hand, and repeated updates at rest keep the
 heading/bias correlation exact.  R is diagonal: the windows' own sample variance over the
-number of samples (floored at a quarter of the configured ARW, and at ``_R_FLOOR`` for what
-white noise does not describe: temperature, g-sensitivity).  The heading is held as a
+number of samples (plus ``_R_FLOOR`` for what white noise does not describe: temperature,
+g-sensitivity).  The heading is held as a
 consider state when the GNSS hold is enabled (docs/design.md §3.7), so the earth rate does
 not become a gyrocompass a MEMS gyro cannot be.  Each update uses fresh windows only.
 
-Gated like any update.  Refused (the filter's bias is further off than its covariance
-admits: an uncalibrated gyro under a tight prior), the bias is *set* to the measurement
-instead: its covariance becomes R plus the earth rate squared (heading unknown), with no
-correlations, and the tilt variance grows by its prior (the wrong bias has been tilting the
-attitude).  Counted ``gyro_rest_accepted`` / ``gyro_rest_rejected`` / ``reset_gyro_rest``.
+Gated like any update.  Refused ``_RESET_AFTER`` (2) times in a row by measurements that agree
+with each other (chi-square of their scatter; the filter's bias is further off than its
+covariance admits: an uncalibrated gyro under a tight prior; a slow sway changes its rate
+between them), the bias is *set* to their mean instead: its covariance becomes their R plus
+the earth rate squared (heading unknown), with no correlations, and the tilt variance grows
+by its prior (the wrong bias has been tilting the attitude).  Counted ``gyro_rest_accepted``
+/ ``gyro_rest_rejected`` / ``reset_gyro_rest``.
 """
 
 from __future__ import annotations
@@ -69,11 +85,16 @@ if TYPE_CHECKING:
 Arr = npt.NDArray[np.float64]
 
 _WINDOW_S = 1.0  # one stillness window
-_WINDOWS = 5  # windows per test and per bias measurement (5 s at rest)
+_WINDOWS = 10  # windows per test and per bias measurement (10 s at rest)
+_MIN_WINDOWS = 5  # a shorter still run that motion ends is measured from this many on
 _STILL_PROB = 0.999  # quantile of the Allan-type chi-square test
 _F_TOL = 1.5  # |mean specific force| within this of gravity, m/s^2 (covers 150 mg offsets)
 _MAX_SPEED_MPS = 0.5  # filter's horizontal speed below this while navigating
 _R_FLOOR = (1.0 * math.pi / 180.0 / 3600.0) ** 2  # (1 deg/h)^2: temperature, g-sensitivity
+_RESET_AFTER = 2  # refused measurements in a row, agreeing with each other, before a reset
+# per-sample variance floors of the still test (a noiseless simulated sensor): (rad/s)^2, (m/s^2)^2
+_VAR_FLOOR_GYRO = 1e-12
+_VAR_FLOOR_ACCEL = 1e-10
 
 # accumulator layout (one window): sum rate (3), sum specific force (3), sums of squares of
 # both (6), sample count, time (s)
@@ -116,16 +137,47 @@ def slide_out(win: Arr, n: Arr) -> None:
 
 
 @jit
+def _still(win: Arr, K: int, still_gate: float, trend_gate: float) -> bool:
+    """The module doc's still test over the first K windows of ``win``."""
+    kc = 0.5 * (K - 1)
+    sxx = 0.0
+    for j in range(K):
+        sxx += (j - kc) ** 2
+    for s in range(2):
+        floor = _VAR_FLOOR_GYRO if s == 0 else _VAR_FLOOR_ACCEL
+        stat = 0.0
+        for ax in range(3 * s, 3 * s + 3):
+            mean = 0.0
+            var = 0.0
+            for j in range(K):
+                mean += win[j, ax]
+                var += win[j, 6 + ax]
+            mean /= K
+            var = max(var / K, floor)
+            sxy = 0.0
+            for j in range(K):
+                d = win[j, ax] - mean
+                stat += d * d * win[j, 12] / var
+                sxy += (j - kc) * d
+            # a slow sway is a trend across the windows first: its least-squares slope,
+            # 1 dof per axis, is far more sensitive to it than the omnibus scatter
+            if sxy * sxy / sxx * win[0, 12] / var > trend_gate:
+                return False
+        if stat > still_gate:
+            return False
+    return True
+
+
+@jit
 def close_window(a: Arr, win: Arr, n: Arr, rate_tol: float, f_tol: float, g: float,
-                 arw: float, vrw: float, still_gate: float) -> int:
+                 still_gates: Arr, trend_gate: float, k_min: int) -> int:
     """Close the window accumulated in ``a`` into the run ``win`` (K, 13) holding ``n[0]``
-    windows; -1: moving (run cleared), 0: collecting, 1: the K windows are still.
+    windows.  Returns -1: moving (run cleared), 0: collecting, 1: the K windows are still,
+    2: motion ended a run whose first ``n[0]`` (>= k_min) windows are still (the last one
+    before the motion is left out: the motion may have begun inside it).
 
     Per window: mean rate (3), mean specific force (3), sample variances of both (6), count.
-    The still test is the module doc's: gross limits per window, then per sensor the
-    chi-square scatter of the window means against the in-window noise, with the observed
-    variance floored at a quarter of the configured white noise (``arw``, ``vrw``:
-    densities) so a near-noiseless sensor is not judged by zero.
+    ``still_gates[k]``: the omnibus gate for k windows.
     """
     cnt = a[12]
     if cnt < 2.0:
@@ -139,35 +191,23 @@ def close_window(a: Arr, win: Arr, n: Arr, rate_tol: float, f_tol: float, g: flo
         win[k, i] = mean
         win[k, 6 + i] = max((a[6 + i] - cnt * mean * mean) / (cnt - 1.0), 0.0)
     win[k, 12] = cnt
-    dt = a[13] / cnt
     for i in range(a.shape[0]):
         a[i] = 0.0
     rate = math.sqrt(win[k, 0] ** 2 + win[k, 1] ** 2 + win[k, 2] ** 2)
     f = math.sqrt(win[k, 3] ** 2 + win[k, 4] ** 2 + win[k, 5] ** 2)
     if rate > rate_tol or abs(f - g) > f_tol:
+        if k - 1 >= k_min and _still(win, k - 1, still_gates[k - 1], trend_gate):
+            n[0] = k - 1
+            return 2
         n[0] = 0.0
         return -1
     k += 1
     n[0] = k
     if k < K:
         return 0
-    for s in range(2):
-        floor = 0.25 * (arw * arw if s == 0 else vrw * vrw) / dt + (1e-14 if s == 0 else 1e-10)
-        stat = 0.0
-        for ax in range(3 * s, 3 * s + 3):
-            mean = 0.0
-            var = 0.0
-            for j in range(K):
-                mean += win[j, ax]
-                var += win[j, 6 + ax]
-            mean /= K
-            var = max(var / K, floor)
-            for j in range(K):
-                d = win[j, ax] - mean
-                stat += d * d * win[j, 12] / var
-        if stat > still_gate:
-            slide_out(win, n)
-            return 0
+    if not _still(win, K, still_gates[K], trend_gate):
+        slide_out(win, n)
+        return 0
     return 1
 
 
@@ -189,15 +229,23 @@ class GyroRest:
         # sample variance of rate (3) and of specific force (3), sample count
         self._win = np.zeros((_WINDOWS, 13))
         self._n = np.zeros(1)  # windows in self._win (a float, kept in an array for the kernel)
-        # per sensor: chi-square with 3 (K - 1) dof for a still one
-        self._still_gate = chi2_quantile(_STILL_PROB, 3 * (_WINDOWS - 1))
+        # per sensor and number of windows k: chi-square with 3 (k - 1) dof for a still one
+        self._still_gates = np.array([chi2_quantile(_STILL_PROB, 3 * max(k - 1, 1))
+                                      for k in range(_WINDOWS + 1)])
+        self._trend_gate = chi2_quantile(_STILL_PROB, 1)  # per axis
         self._gate3 = chi2_quantile(cfg.filter.gate_prob, 3)
+        # refused measurements in a row (mean raw rate (3), R diagonal (3)) and their count;
+        # they agree when their scatter is within chi-square 3 (n - 1) dof
+        self._rej = np.zeros((_RESET_AFTER, 6))
+        self._n_rej = 0
+        self._agree_gate = chi2_quantile(_STILL_PROB, 3 * (_RESET_AFTER - 1))
         self.updates = 0
         self.still = False
 
     def reset(self) -> None:
         self.acc[:] = 0.0
         self._n[0] = 0.0
+        self._n_rej = 0
         self.still = False
 
     @property
@@ -208,26 +256,31 @@ class GyroRest:
     def window_done(self, est: Estimator) -> None:
         """The present window is complete (:func:`rest_push` returned True)."""
         g = gravity(float(est.pos[0]), float(est.pos[2])) if est.initialized else 9.80665
-        imu = self.cfg.imu
         res = close_window(self.acc, self._win, self._n, self.cfg.init.static_rate_tol,
-                           _F_TOL, g, imu.gyro_arw, imu.accel_vrw, self._still_gate)
+                           _F_TOL, g, self._still_gates, self._trend_gate, _MIN_WINDOWS)
         self.still = res == 1
-        if res != 1:
+        if res <= 0:
             return
         if not (self.enabled and est.initialized):
-            # before navigation: keep the newest windows for the first measurement
-            slide_out(self._win, self._n)
+            if res == 1:
+                # before navigation: keep the newest windows for the first measurement
+                slide_out(self._win, self._n)
+            else:
+                self._n[0] = 0.0
             return
-        self._n[0] = 0  # each measurement uses fresh windows only
+        k = int(self._n[0])
+        self._n[0] = 0.0  # each measurement uses fresh windows only
+        # at rest by GNSS or by the filter: a filter that an uncalibrated gyro has already
+        # driven off must still get its calibration
         vn = est.vel_n
-        if math.hypot(float(vn[0]), float(vn[1])) < _MAX_SPEED_MPS:
-            self._measure(est)
+        if (est.gnss.last_speed_h < _MAX_SPEED_MPS
+                or math.hypot(float(vn[0]), float(vn[1])) < _MAX_SPEED_MPS):
+            self._measure(est, k)
 
-    def _measure(self, est: Estimator) -> None:
-        W = self._win
+    def _measure(self, est: Estimator, k: int) -> None:
+        """The bias measurement from the first ``k`` windows of the run."""
+        W = self._win[:k]
         n_tot = float(np.sum(W[:, 12]))
-        imu = self.cfg.imu
-        dt = self.window_s * _WINDOWS / n_tot
         lat = float(est.pos[0])
         w_ie = (OMEGA_IE * math.cos(lat), 0.0, -OMEGA_IE * math.sin(lat))
         C = est.mat_nb
@@ -237,32 +290,50 @@ class GyroRest:
         # [w x] for w = w_ie^n
         wx = ((0.0, -w_ie[2], w_ie[1]), (w_ie[2], 0.0, -w_ie[0]), (-w_ie[1], w_ie[0], 0.0))
         bg = est.bias_g
-        r_meas = [0.0, 0.0, 0.0]
+        rec = self._rej[self._n_rej]  # this measurement: mean raw rate (3), R diagonal (3)
         for i in range(3):
             e_b = C[0, i] * w_ie[0] + C[1, i] * w_ie[1] + C[2, i] * w_ie[2]  # (C^T w)_i
-            r_meas[i] = float(np.sum(W[:, i] * W[:, 12])) / n_tot
-            z[i] = float(bg[i]) + e_b - r_meas[i]
+            rec[i] = float(np.sum(W[:, i] * W[:, 12])) / n_tot
+            z[i] = float(bg[i]) + e_b - rec[i]
             # -(C^T [w x])_i,j = -sum_k C[k, i] wx[k][j]
             for j in range(3):
                 H[i, j] = -(C[0, i] * wx[0][j] + C[1, i] * wx[1][j] + C[2, i] * wx[2][j])
             H[i, _BG + i] = -1.0
-            var = max(float(np.mean(W[:, 6 + i])), 0.25 * imu.gyro_arw ** 2 / dt)
+            var = max(float(np.mean(W[:, 6 + i])), _VAR_FLOOR_GYRO)
             R[i, i] = var / n_tot + _R_FLOOR
+            rec[3 + i] = R[i, i]
         hold = 2 if est.gnss.hold_enabled else -1
         self.updates += 1
         nis = est.fuse_block(3, self._gate3, "gyro_rest", hold)
         if nis >= 0.0 or nis == -math.inf:
+            self._n_rej = 0
             return
-        # the filter's bias is further off than its covariance admits: take the measurement
+        self._n_rej += 1
+        if self._n_rej < _RESET_AFTER:
+            return
+        # refused _RESET_AFTER times in a row: if the refused readings agree with each other
+        # the filter's bias is further off than its covariance admits; take their mean
+        J = self._rej
+        stat = 0.0
+        mean = [float(np.mean(J[:, i])) for i in range(3)]
+        for k in range(_RESET_AFTER):
+            for i in range(3):
+                stat += (J[k, i] - mean[i]) ** 2 / J[k, 3 + i]
+        if stat > self._agree_gate:
+            # they disagree (a sway, not an offset): forget the oldest
+            J[:-1] = J[1:].copy()
+            self._n_rej -= 1
+            return
+        self._n_rej = 0
         P = est.P
         earth2 = OMEGA_IE * OMEGA_IE
         for i in range(3):
             e_b = C[0, i] * w_ie[0] + C[1, i] * w_ie[1] + C[2, i] * w_ie[2]
-            bg[i] = r_meas[i] - e_b
+            bg[i] = mean[i] - e_b
             k = _BG + i
             P[k, :] = 0.0
             P[:, k] = 0.0
-            P[k, k] = R[i, i] + earth2
+            P[k, k] = float(np.mean(J[:, 3 + i])) / _RESET_AFTER + earth2
         tilt2 = self.cfg.init.tilt_sd ** 2
         P[0, 0] += tilt2
         P[1, 1] += tilt2
