@@ -139,5 +139,5 @@ def test_imu_grade_sets_its_figures_and_written_keys_override_them(grade: str) -
 
 
 def test_unknown_imu_grade_is_refused_with_the_choices() -> None:
-    with pytest.raises(ConfigError, match="grade.*consumer"):
+    with pytest.raises(ConfigError, match=r"grade.*consumer"):
         EstimatorConfig.from_dict(load_config(None, ["imu.grade=automotive"]))

@@ -196,7 +196,7 @@ def close_window(a: Arr, win: Arr, n: Arr, rate_tol: float, f_tol: float, g: flo
     rate = math.sqrt(win[k, 0] ** 2 + win[k, 1] ** 2 + win[k, 2] ** 2)
     f = math.sqrt(win[k, 3] ** 2 + win[k, 4] ** 2 + win[k, 5] ** 2)
     if rate > rate_tol or abs(f - g) > f_tol:
-        if k - 1 >= k_min and _still(win, k - 1, still_gates[k - 1], trend_gate):
+        if k - 1 >= k_min and _still(win, k - 1, float(still_gates[k - 1]), trend_gate):
             n[0] = k - 1
             return 2
         n[0] = 0.0
@@ -205,7 +205,7 @@ def close_window(a: Arr, win: Arr, n: Arr, rate_tol: float, f_tol: float, g: flo
     n[0] = k
     if k < K:
         return 0
-    if not _still(win, K, still_gates[K], trend_gate):
+    if not _still(win, K, float(still_gates[K]), trend_gate):
         slide_out(win, n)
         return 0
     return 1
