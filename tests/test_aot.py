@@ -58,6 +58,16 @@ for _ in range(50):
                  + list(attitude_outputs(m, cov, M)) + list(earth.radii(r / 2.0))
                  + [earth.gravity(p / 2.0, y * 1000.0)] + m.ravel().tolist())
 out["calls"] = calls
+# a kernel compiled now that calls prebuilt ones (as a new kernel would)
+import numba
+
+@numba.njit
+def composed(m, r, p, y):
+    rotation.euler_to_mat_into(m, r, p, y)
+    return rotation.mat_to_quat(m), earth.radii(p)
+
+q, rr = composed(m, 0.3, -0.2, 2.0)
+out["composed"] = list(q) + list(rr)
 out["status"] = _jit.aot_status()
 out["radii"] = list(earth.radii(0.5))
 print(json.dumps(out))
@@ -120,6 +130,7 @@ def test_prebuilt_kernels_equal_the_jit(build: Path, jit_run: Any, tmp_path: Pat
     np.testing.assert_array_equal(np.array(aot["buf"]), np.array(jit_run["buf"]))
     np.testing.assert_array_equal(np.array(aot["sol"]), np.array(jit_run["sol"]))
     np.testing.assert_array_equal(np.array(aot["calls"]), np.array(jit_run["calls"]))
+    np.testing.assert_array_equal(np.array(aot["composed"]), np.array(jit_run["composed"]))
     assert np.isfinite(np.array(aot["buf"])).all()
 
 
