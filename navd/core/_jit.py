@@ -153,10 +153,10 @@ def _cache_classes(directory: Path, stamp: str | None) -> type:
             # numba, 0.4 s on a Pi), which only compiling needs.  Loading machine code needs
             # the runtime's symbols (NRT), which this initialises; any compile still
             # refreshes first.
-            from numba.core.runtime import rtsys
+            from numba.core.runtime.nrt import rtsys
 
             rtsys.initialize(target_context)
-            return self._load_overload(sig, target_context)
+            return cast(Any, self)._load_overload(sig, target_context)
 
     return Cache
 
