@@ -168,6 +168,13 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     modes = [m.strip() for m in a.modes.split(",") if m.strip()]
     compileall.compile_dir(ROOT / "navd", quiet=1)
+    if "prebuilt" in modes:
+        from navd.core._jit import AOT_DIR
+        from navd.core.aot_build import is_stale
+
+        why = is_stale(AOT_DIR)
+        print(f"install-time kernels in {AOT_DIR}: {why or 'up to date'}"
+              f"{' (make kernels rebuilds them)' if why else ''}", file=sys.stderr)
     print("generating car480 with a 1 kHz IMU, 60 s ...", file=sys.stderr)
     run = generate(load_scenario("car480", overrides={"imu.rate_hz": 1000.0,
                                                       "duration_s": 60.0}), seed=1)
