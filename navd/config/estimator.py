@@ -161,19 +161,18 @@ class MctlsSection:
 class YawBankSection:
     """Heading from motion (navd/core/aiding/yaw_bank.py, docs/design.md §4.1)."""
 
-    # "auto": on for the multirotor and fixed_wing profiles (no usable course), off for ground;
-    # "off" by default until it beats the robustness baseline with uncalibrated gyros
-    enabled: str = _f("off", choices=("auto", "on", "off"))
+    # "auto": on for the multirotor profile (navd/core/aiding/yaw_bank.py, bank_enabled)
+    enabled: str = _f("auto", choices=("auto", "on", "off"))
     members: int = _f(8)
     # unmodelled horizontal specific force per member (tilt error x g, vibration, m/s^2)
-    accel_noise: float = _f(0.5, "mps2")
+    accel_noise: float = _f(0.1, "mps2")
     # yaw offset random walk: covers the main filter's own yaw drift between GNSS epochs
     yaw_noise: float = _f(0.3, "deg_per_sqrt_s")
     # gyro scale-factor uncertainty: yaw variance grows by (this)^2 per radian turned
     gyro_scale_sd: float = _f(1.0, "pct")
     # the main filter's yaw drift (its unestimated gyro bias about down), learned by every
     # hypothesis: prior 1-sigma and random walk
-    rate_sd: float = _f(0.5, "dps")
+    rate_sd: float = _f(0.1, "dps")
     rate_noise: float = _f(0.01, "dps_per_sqrt_s")
     # what the main filter's tilt and accelerometer-bias errors leave in the horizontal
     # specific force, per hypothesis: prior 1-sigma and random walk

@@ -39,9 +39,11 @@ import numpy as np
 import numpy.typing as npt
 
 from navd.config import EstimatorConfig
+from navd.core import state as st
 from navd.core.aiding import yaw_bank_kernels as yk
 from navd.core.aiding.base import INNOV_FLAG, INNOV_NIS, INNOV_VEL, NOT_TRIED
 from navd.core.chi2 import chi2_quantile
+from navd.core.earth import radii
 from navd.types import GnssSample
 
 if TYPE_CHECKING:
@@ -55,7 +57,7 @@ ALIGNED = 2
 STATE_NAMES = ("search", "trial", "aligned")
 
 _DEFAULT_VEL_ACC = 0.5  # m/s, as the GNSS aid when the receiver gives none
-_TRIAL_PROB = 0.999
+_DEFAULT_H_ACC = 5.0  # m
 
 # scalar state (self._s)
 _STATE = 0
@@ -69,14 +71,18 @@ _DIS_T0 = 7  # t_us main and bank started to disagree (-1: they agree)
 _LAST_AGREE_T = 8  # t_us main and bank last agreed
 _RESULT = 9  # last bank_fix result
 _ALIGNED_T = 10  # t_us of the last alignment
-_NS = 11
+_SD_V = 11  # the last fix's per-axis horizontal speed sigma (m/s)
+_NS = 12
 
 
 def bank_enabled(cfg: EstimatorConfig) -> bool:
     """Whether the estimator runs a yaw bank: ``[yaw_bank] enabled``, where "auto" means the
-    profiles without a usable course (multirotor, fixed_wing)."""
+    multirotor profile (its course says nothing about heading).  Not fixed_wing yet: with
+    the default IMU model an uncalibrated consumer gyro in the air (no rest to calibrate it)
+    leaves the main filter's tilt degrees off, which the bank cannot tell from yaw
+    (docs/results.md, "Yaw bank"); "on" enables it for any profile."""
     e = cfg.yaw_bank.enabled
-    return e == "on" or (e == "auto" and cfg.filter.profile in ("multirotor", "fixed_wing"))
+    return e == "on" or (e == "auto" and cfg.filter.profile == "multirotor")
 
 
 class YawBank:
@@ -104,7 +110,7 @@ class YawBank:
         par[yk.P_R0] = c.rate_sd
         par[yk.P_B0] = c.accel_bias_sd
         self._par = par
-        self._trial_gate = [0.0] + [chi2_quantile(_TRIAL_PROB, 3 * k)
+        self._trial_gate = [0.0] + [chi2_quantile(cfg.filter.gate_prob, 3 * k)
                                     for k in range(1, c.trial_epochs + 1)]
         self.reset()
 
@@ -159,6 +165,7 @@ class YawBank:
         sd = (g.vel_acc_mps if g.vel_acc_mps > 0.0 and math.isfinite(g.vel_acc_mps)
               else _DEFAULT_VEL_ACC)
         sd = max(sd, self.cfg.gnss.min_vel_sd)
+        self._s[_SD_V] = sd
         res = yk.bank_fix(self.buf, est.buf, self._par, float(g.t_us),
                           0.5 * est.imu_dt_us + 1.0, g.vel_n, g.vel_e, sd)
         self._s[_RESULT] = res
@@ -190,40 +197,37 @@ class YawBank:
             if not trusted:
                 s[_AGREE_T0] = -1.0
                 return
-            if s[_AGREE_T0] < 0.0 or abs(yk.wrap(off - s[_AGREE_REF])) > c.agree:
-                s[_AGREE_T0] = t
-                s[_AGREE_REF] = off
-                s[_AGREE_N] = 0.0
-            if res == yk.WEIGHTED:
-                s[_AGREE_N] += 1.0
-            if ((t - s[_AGREE_T0]) * 1e-6 >= c.agree_time
-                    and s[_AGREE_N] >= c.trial_epochs):
-                self._begin_trial(est, t)
+            self._agree_step(t, off, res)
+            if s[_AGREE_N] >= 1.0:
+                # trusted and excited: try the bank's yaw in the main filter at once, while
+                # the agreement over time is still being established
+                self._begin_trial(est, t, g)
                 est.counters["yaw_bank_trials"] += 1
             return
-        if trusted:
-            self._correct_drift(est)
         p22 = float(est.P[2, 2])
         comb = math.sqrt(max(float(self.buf[yk.H_VAR]), 0.0) + p22)
         if state == TRIAL:
+            if not trusted or abs(yk.wrap(off - s[_AGREE_REF])) > max(c.agree, 1.5 * sd):
+                self._fail_trial(est, "yaw_bank_trial_failed_bank")
+                return
+            self._agree_step(t, off, res)
             rec = est.innov[INNOV_VEL]
-            if res == yk.WEIGHTED and rec[INNOV_FLAG] != NOT_TRIED:
+            if (res == yk.WEIGHTED and rec[INNOV_FLAG] != NOT_TRIED
+                    and s[_TRIAL_N] < c.trial_epochs):
                 nis = float(rec[INNOV_NIS])
                 s[_TRIAL_NIS] += nis if math.isfinite(nis) else 1e6
                 s[_TRIAL_N] += 1.0
             k = int(s[_TRIAL_N])
-            if abs(off) > 3.0 * comb + c.agree:
-                self._fail_trial(est, "yaw_bank_trial_failed_bank")
-            elif k >= c.trial_epochs:
-                if s[_TRIAL_NIS] <= self._trial_gate[c.trial_epochs]:
+            if k >= c.trial_epochs:
+                if s[_TRIAL_NIS] > self._trial_gate[c.trial_epochs]:
+                    self._fail_trial(est, "yaw_bank_trial_failed_nis")
+                elif (t - s[_AGREE_T0]) * 1e-6 >= c.agree_time:
                     s[_STATE] = ALIGNED
                     s[_DIS_T0] = -1.0
                     s[_LAST_AGREE_T] = t
                     s[_ALIGNED_T] = t
                     est.heading_aligned = True
                     est.counters["yaw_bank_aligned"] += 1
-                else:
-                    self._fail_trial(est, "yaw_bank_trial_failed_nis")
             elif (t - s[_TRIAL_T0]) * 1e-6 > c.trial_timeout:
                 self._fail_trial(est, "yaw_bank_trial_timeout")
             return
@@ -234,9 +238,22 @@ class YawBank:
             if s[_DIS_T0] < 0.0:
                 s[_DIS_T0] = t
             elif (t - s[_DIS_T0]) * 1e-6 >= c.agree_time:
-                self._realign(est, t, off)
+                self._realign(est, t, off, g)
         else:
             s[_DIS_T0] = -1.0
+
+    def _agree_step(self, t: float, off: float, res: int) -> None:
+        """The agreement window: restarted whenever the composite yaw moves more than
+        ``agree`` (or 1.5 of its sigmas, while it still converges) from where the window
+        began (its reference turns with the main yaw)."""
+        s = self._s
+        if (s[_AGREE_T0] < 0.0
+                or abs(yk.wrap(off - s[_AGREE_REF])) > max(self.c.agree, 1.5 * self.sd)):
+            s[_AGREE_T0] = t
+            s[_AGREE_REF] = off
+            s[_AGREE_N] = 0.0
+        if res == yk.WEIGHTED:
+            s[_AGREE_N] += 1.0
 
     # ------------------------------------------------------------------ actions
     def _set_main_yaw(self, est: Estimator, d: float, var: float) -> None:
@@ -244,20 +261,25 @@ class YawBank:
         correlations left (the yaw is new information)."""
         yk.rotate_main(est.buf, d)
         yk.bank_rotate(self.buf, d)
+        self._s[_AGREE_REF] = yk.wrap(self._s[_AGREE_REF] - d)
         P = est.P
         P[2, :] = 0.0
         P[:, 2] = 0.0
         P[2, 2] = var
 
-    def _begin_trial(self, est: Estimator, t: float) -> None:
+    def _begin_trial(self, est: Estimator, t: float, g: GnssSample) -> None:
         s = self._s
+        if s[_AGREE_T0] < 0.0:
+            s[_AGREE_T0] = t
+            s[_AGREE_REF] = self.offset
+            s[_AGREE_N] = 0.0
         var = max(float(self.buf[yk.H_VAR]), self.c.aligned_sd ** 2)
         self._set_main_yaw(est, self.offset, var)
+        self._main_onto_fix(est, g)
         s[_STATE] = TRIAL
         s[_TRIAL_T0] = t
         s[_TRIAL_NIS] = 0.0
         s[_TRIAL_N] = 0.0
-        s[_AGREE_T0] = -1.0
 
     def _fail_trial(self, est: Estimator, reason: str) -> None:
         s = self._s
@@ -277,48 +299,50 @@ class YawBank:
             self.buf[o + yk.M_W] = 1.0 / self.n
         yk.composite(self.buf)
 
-    def _correct_drift(self, est: Estimator, widen: float = 0.0) -> None:
-        """The bank's offset rate r is the main yaw's drift, -(gyro-bias error) about down
-        (c_d = third row of C_b^n, body components of down).  A significant r (beyond 3
-        sigma) means the main gyro-bias estimate is off along c_d: correct it there, keep
-        the hypotheses' rates consistent, and make the bias variance along c_d at least the
-        bank's (plus ``widen``, rad^2/s^2): the main filter's gyro-bias model was too sure."""
-        b = self.buf
-        r = float(b[yk.H_RATE])
-        rv = float(b[yk.H_RVAR])
-        if r * r <= 9.0 * rv and widen <= 0.0:
-            return
+    def _main_onto_fix(self, est: Estimator, g: GnssSample) -> None:
+        """With its yaw in doubt the main filter propagated its horizontal velocity and
+        position with a wrong heading (or without updates): now that the heading is new,
+        move both onto this epoch's fix (lever arm removed with the new attitude) with the
+        fix's accuracy and no correlations, as the lock-out recovery does."""
         m = est.mat_nb
-        c0, c1, c2 = float(m[2, 0]), float(m[2, 1]), float(m[2, 2])
+        lb = est.cfg.gnss.lever_arm
+        w = est.rate_b
+        ux = w[1] * lb[2] - w[2] * lb[1]
+        uy = w[2] * lb[0] - w[0] * lb[2]
+        uz = w[0] * lb[1] - w[1] * lb[0]
         P = est.P
-        v = (c0 * (c0 * P[9, 9] + c1 * P[9, 10] + c2 * P[9, 11])
-             + c1 * (c0 * P[10, 9] + c1 * P[10, 10] + c2 * P[10, 11])
-             + c2 * (c0 * P[11, 9] + c1 * P[11, 10] + c2 * P[11, 11]))
-        if r * r > 9.0 * rv:
-            bg = est.bias_g
-            bg[0] -= r * c0
-            bg[1] -= r * c1
-            bg[2] -= r * c2
-            yk.bank_rate_shift(b, r)
-            est.counters["yaw_bank_gyro_bias_corrected"] += 1
-        add = max(0.0, rv + widen - float(v))
-        if add > 0.0:
-            cc = (c0, c1, c2)
-            for i in range(3):
-                for j in range(3):
-                    P[9 + i, 9 + j] += add * cc[i] * cc[j]
+        sd_v = float(self._s[_SD_V])
+        est.vel_n[0] = g.vel_n - (m[0, 0] * ux + m[0, 1] * uy + m[0, 2] * uz)
+        est.vel_n[1] = g.vel_e - (m[1, 0] * ux + m[1, 1] * uy + m[1, 2] * uz)
+        for k in (3, 4):
+            P[k, :] = 0.0
+            P[:, k] = 0.0
+            P[k, k] = sd_v * sd_v
+        h_sd = g.h_acc_m if g.h_acc_m > 0.0 and math.isfinite(g.h_acc_m) else _DEFAULT_H_ACC
+        h_sd = max(h_sd, self.cfg.gnss.min_pos_sd)
+        h = float(est.pos[2])
+        r_m, r_n = radii(g.lat_rad)
+        ln = m[0, 0] * lb[0] + m[0, 1] * lb[1] + m[0, 2] * lb[2]
+        le = m[1, 0] * lb[0] + m[1, 1] * lb[1] + m[1, 2] * lb[2]
+        est.pos[0] = g.lat_rad - ln / (r_m + h)
+        est.pos[1] = g.lon_rad - le / ((r_n + h) * math.cos(g.lat_rad))
+        for k in (6, 7):
+            P[k, :] = 0.0
+            P[:, k] = 0.0
+        P[6, 6] = (h_sd / (r_m + h)) ** 2
+        P[7, 7] = (h_sd / ((r_n + h) * math.cos(g.lat_rad))) ** 2
+        st.history_reset(est.buf)
 
-    def _realign(self, est: Estimator, t: float, off: float) -> None:
-        """The main heading drifted away from a trusted bank: its model was optimistic.
-        Reset it to the bank, widen the gyro-bias sigma along down to the drift seen since
-        the two last agreed, re-try."""
+    def _realign(self, est: Estimator, t: float, off: float, g: GnssSample) -> None:
+        """The main heading left a trusted bank: its own sigma did not cover its error.
+        Reset it to the bank, clear "aligned" and let a new trial decide.  (Widening the
+        gyro-bias sigma to the drift seen was tried: with a noisy accelerometer a bank that
+        is itself a few sigma off then drags the bias estimate away, and tilt with it.)"""
         s = self._s
-        since = max((t - max(s[_LAST_AGREE_T], s[_ALIGNED_T])) * 1e-6, 10.0)
-        rate = abs(off) / since
-        self._correct_drift(est, rate * rate)
         est.heading_aligned = False
         est.counters["yaw_bank_realigned"] += 1
-        self._begin_trial(est, t)
+        s[_AGREE_T0] = -1.0
+        self._begin_trial(est, t, g)
         s[_DIS_T0] = -1.0
 
     # ------------------------------------------------------------------ status

@@ -217,9 +217,10 @@ def member_h(x: Arr, u_n: float, u_e: float, out: Arr) -> None:
 
 @jit
 def predict_member(bb: Arr, o: int, a_n: float, a_e: float, T: float, q_v: float,
-                   q_d: float, q_r: float, q_b: float) -> None:
+                   q_d: float, q_r: float, q_b: float, q_noise: float) -> None:
     """Member at offset ``o``: v + Rz2(d) a + b T, d + r T; P <- F P F^T +
-    diag(q_v, q_v, q_d, q_r, q_b, q_b) with F = I + E (see the module doc)."""
+    diag(q_v + P_dd q_noise, same, q_d, q_r, q_b, q_b) with F = I + E (see the module doc);
+    ``q_noise``: the variance of each axis of the measured increment a (m/s)^2."""
     c = math.cos(bb[o + 2])
     s = math.sin(bb[o + 2])
     dn = c * a_n - s * a_e
@@ -229,6 +230,10 @@ def predict_member(bb: Arr, o: int, a_n: float, a_e: float, T: float, q_v: float
     bb[o + 2] = wrap(bb[o + 2] + bb[o + 3] * T)
     p = o + M_P
     w = SCR
+    # the increment a is measured: its noise, turned by an offset known only to P_dd, adds
+    # P_dd x (its variance) to each axis (the EKF's linearisation would otherwise take the
+    # noise for acceleration, and yaw information from it)
+    q_v = q_v + bb[p + 2 * NX + 2] * q_noise
     # rows of F P: row0 = P0 - de P2 + T P4, row1 = P1 + dn P2 + T P5, row2 = P2 + T P3
     for j in range(NX):
         p2 = bb[p + 2 * NX + j]
@@ -437,7 +442,8 @@ def bank_fix(bb: Arr, sb: Arr, par: Arr, t_us: float, tol_us: float, vn: float, 
     nis_w = 0.0
     for i in range(n):
         o = MEM + i * MW
-        predict_member(bb, o, a_n, a_e, T, q_v, q_d, q_r_rate * T, q_b_rate * T)
+        predict_member(bb, o, a_n, a_e, T, q_v, q_d, q_r_rate * T, q_b_rate * T,
+                       q_v_rate * T)
         half_logdet = update_member(bb, o, vn, ve, u_n, u_e, r_var)
         nis = bb[o + M_NIS]
         nis_w += bb[o + M_W] * min(nis, 1e6)
@@ -465,8 +471,9 @@ def bank_fix(bb: Arr, sb: Arr, par: Arr, t_us: float, tol_us: float, vn: float, 
 @jit
 def bank_rotate(bb: Arr, d: float) -> None:
     """The main filter's attitude was turned about down by ``d`` rad (C <- Rz(d) C): keep
-    every hypothesis where it was (offsets minus d) and re-express the ring's sums, which
-    were rotated with the old attitude, in the new main frame."""
+    every hypothesis where it was (offsets minus d) and re-express the ring's sums and the
+    low-passed specific force, which were rotated with the old attitude, in the new main
+    frame."""
     n = int(bb[H_N])
     for i in range(n):
         o = MEM + i * MW
@@ -477,6 +484,10 @@ def bank_rotate(bb: Arr, d: float) -> None:
     y = bb[H_CUME]
     bb[H_CUMN] = c * x - s * y
     bb[H_CUME] = s * x + c * y
+    x = bb[H_LPN]
+    y = bb[H_LPE]
+    bb[H_LPN] = c * x - s * y
+    bb[H_LPE] = s * x + c * y
     for i in range(RING_LEN):
         o = RING + i * RING_W
         if bb[o] < 0.0:
