@@ -37,6 +37,7 @@ roll/pitch vs onboard in flight.  The onboard attitude is an estimate, not truth
 
     python benchmarks/yaw_bank.py [--seeds 100] [--scenarios a,b] [--real] [--json PATH]
                                   [--jobs 2] [--set SCENARIO_KEY=V] [--config NAVD_KEY=V]
+                                  [--trace DIR]
 
 ``--config`` runs a non-default navd config (e.g. ``yaw_bank.enabled=auto`` while the bank is
 off by default); the printed title then says "NOT the default config" and lists it.
@@ -167,16 +168,45 @@ def seed_result(name: str, seed: int, run: SimRun, res: rb.RunResult) -> SeedRes
                       counters)
 
 
+TRACE_COLUMNS = ("t_s", "aligned", "hdg_err_deg", "hdg_sd_deg", "roll_err_deg", "roll_sd_deg",
+                 "pitch_err_deg", "pitch_sd_deg", "truth_yaw_deg", "truth_crab_deg",
+                 "truth_accel_h_mps2")
+
+
+def write_trace(path: Path, run: SimRun, res: rb.RunResult) -> None:
+    """One run's scored instants as CSV (:data:`TRACE_COLUMNS`): the estimator's errors and
+    sigmas with the truth yaw, crab (yaw - GNSS course; 0 when slower than 0.5 m/s) and
+    horizontal acceleration at each instant, for looking at a failing seed."""
+    dt = run.imu_dt_s
+    k = np.clip(np.rint(res.t_s / dt).astype(np.int64), 1, run.truth_vel_n.shape[0] - 1)
+    v = run.truth_vel_n
+    yaw = run.truth_euler[k, 2]
+    course = np.arctan2(v[k, 1], v[k, 0])
+    crab = np.where(np.hypot(v[k, 0], v[k, 1]) > 0.5,
+                    (yaw - course + math.pi) % (2 * math.pi) - math.pi, 0.0)
+    acc = (v[k, :2] - v[k - 1, :2]) / dt
+    cols = np.column_stack([res.t_s, res.aligned.astype(np.float64), res.err_deg[:, 2],
+                            res.sd_deg[:, 2], res.err_deg[:, 0], res.sd_deg[:, 0],
+                            res.err_deg[:, 1], res.sd_deg[:, 1], yaw * RAD2DEG,
+                            crab * RAD2DEG, np.hypot(acc[:, 0], acc[:, 1])])
+    np.savetxt(path, cols, delimiter=",", header=",".join(TRACE_COLUMNS), comments="",
+               fmt="%.6g")
+
+
 def run_seed(name: str, seed: int, overrides: Mapping[str, Any] | None = None,
-             config: Sequence[str] = ()) -> SeedResult:
+             config: Sequence[str] = (), trace_dir: str | None = None) -> SeedResult:
     """Generate seed ``seed`` of scenario ``name`` (scenario ``overrides``) and score the
-    estimator: the default config, plus ``config`` navd overrides (``key=value``) if any."""
+    estimator: the default config, plus ``config`` navd overrides (``key=value``) if any;
+    with ``trace_dir``, also write ``<trace_dir>/<name>_<seed>.csv`` (:func:`write_trace`)."""
     sc = next(s for s in SCENARIOS if s.name == name)
     run = generate(load_scenario(name, dict(overrides or {})), seed=seed)
-    return seed_result(name, seed, run, rb.score_sim(run, sc.profile, tuple(config)))
+    res = rb.score_sim(run, sc.profile, tuple(config))
+    if trace_dir is not None:
+        write_trace(Path(trace_dir) / f"{name}_{seed}.csv", run, res)
+    return seed_result(name, seed, run, res)
 
 
-def _job(args: tuple[str, int, dict[str, Any], tuple[str, ...]]) -> SeedResult:
+def _job(args: tuple[str, int, dict[str, Any], tuple[str, ...], str | None]) -> SeedResult:
     return run_seed(*args)
 
 
@@ -212,6 +242,7 @@ def scenario_figures(results: Sequence[SeedResult], sc: YawScenario) -> dict[str
         "aligned_instants": int(err.size),
         "exceed3_pct": 100.0 * float(np.mean(np.abs(err) > 3.0 * sd)) if err.size else math.nan,
         "false_alignments": sum(r.false_alignment for r in results),
+        "false_alignment_seeds": [r.seed for r in results if r.false_alignment],
         "roll_rms_deg": math.sqrt(rp[0] / n_inst) if n_inst else math.nan,
         "pitch_rms_deg": math.sqrt(rp[1] / n_inst) if n_inst else math.nan,
     }
@@ -388,12 +419,14 @@ def format_real(rec: Mapping[str, Any]) -> str:
 
 
 def run_all(names: Sequence[str], seeds: int, jobs: int, real: bool,
-            overrides: Mapping[str, Any] | None = None, config: Sequence[str] = ()
+            overrides: Mapping[str, Any] | None = None, config: Sequence[str] = (),
+            trace_dir: str | None = None
             ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, list[SeedResult]]]:
     """Every seed of every scenario named, and the real logs if asked; rows, real rows and
     the per-seed results."""
     cfg = tuple(config)
-    work = [(n, s, dict(overrides or {}), cfg) for n in names for s in range(1, seeds + 1)]
+    work = [(n, s, dict(overrides or {}), cfg, trace_dir) for n in names
+            for s in range(1, seeds + 1)]
     logs = [(r.name, cfg) for r in rb.REAL_LOGS] if real else []
     if jobs <= 1:
         out = [_job(w) for w in work]
@@ -419,6 +452,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="scenario override for every seed (e.g. duration_s=60)")
+    ap.add_argument("--trace", metavar="DIR",
+                    help="write each run's scored instants to DIR/<scenario>_<seed>.csv")
     ap.add_argument("--config", action="append", default=[], metavar="KEY=VALUE",
                     help="navd config override (e.g. yaw_bank.enabled=auto): the run is then "
                          "NOT the default config, and the output says so")
@@ -448,8 +483,10 @@ def main(argv: list[str] | None = None) -> int:
         build_estimator(load_config(None, ["filter.profile=multirotor", *a.config]))
     except ConfigError as exc:
         ap.error(f"--config: {exc}")
+    if a.trace:
+        Path(a.trace).mkdir(parents=True, exist_ok=True)
     rows, real_rows, per = run_all(names, a.seeds, max(1, a.jobs), a.real, overrides,
-                                   a.config)
+                                   a.config, a.trace)
     what = ("DEFAULT config" if not a.config
             else "NOT the default config: " + " ".join(a.config) + ",")
     print(f"issue-15 yaw from motion: {what} + natural profile, seeds 1..{a.seeds}; "

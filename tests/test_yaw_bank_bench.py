@@ -112,13 +112,16 @@ def test_short_end_to_end(b: ModuleType, tmp_path: Path, capsys: pytest.CaptureF
                           ) -> None:
     """GIVEN multirotor_manoeuvre and hover_only cut to 40 s, 1 seed, one process,
     WHEN the benchmark's main runs with --json,
-    THEN it prints the table and the target block, and the JSON rows agree with the per-seed
+    THEN it prints the table and the target block, the JSON rows agree with the per-seed
     records (aligned + never = seeds; false alignments = per-seed flags) and with an
-    independent scoring of the same seed."""
+    independent scoring of the same seed, and the trace of that seed holds every scored
+    instant: its aligned heading errors are the record's, and its truth acceleration first
+    reaches 1 m/s^2 within 0.1 s after 31.25 s (the instants are 0.1 s apart)."""
     out = tmp_path / "y.json"
+    trace = tmp_path / "trace"
     assert b.main(["--seeds", "1", "--jobs", "1", "--scenarios",
                    "multirotor_manoeuvre,hover_only", "--set", "duration_s=40",
-                   "--json", str(out)]) == 0
+                   "--json", str(out), "--trace", str(trace)]) == 0
     text = capsys.readouterr().out
     assert "multirotor_manoeuvre" in text and "verdict" in text
     doc = json.loads(out.read_text())
@@ -130,6 +133,12 @@ def test_short_end_to_end(b: ModuleType, tmp_path: Path, capsys: pytest.CaptureF
     rec = doc["per_seed"]["multirotor_manoeuvre"][0]
     assert rec["aligned_instants"] == one.hdg_err_deg.size
     assert rec["t_manoeuvre_s"] == pytest.approx(31.25, abs=0.006)
+    tr = np.genfromtxt(trace / "multirotor_manoeuvre_1.csv", delimiter=",", names=True)
+    assert tr.size == len(one.hdg_err_deg) + int(np.sum(tr["aligned"] < 0.5))
+    assert np.allclose(tr["hdg_err_deg"][tr["aligned"] > 0.5], one.hdg_err_deg, atol=1e-4)
+    first = tr["t_s"][np.argmax(tr["truth_accel_h_mps2"] >= 1.0)]
+    assert 31.25 <= first <= 31.35 + 1e-9
+    assert (trace / "hover_only_1.csv").is_file()
 
 
 def test_config_override_is_announced(b: ModuleType, capsys: pytest.CaptureFixture[str]
