@@ -262,14 +262,21 @@ def test_delayed_gnss_is_fused_at_its_time_of_validity() -> None:
 def test_traditional_mode_aligns_from_first_course_and_flags_it() -> None:
     """GIVEN car480 in traditional mode with init.heading_source=gnss_course,
     WHEN the drive is run,
-    THEN the heading is aligned from a course exactly once (counted), is aligned at the end,
-    no course update is ever accepted, and the final heading error is < 10 deg."""
+    THEN the yaw is set from a course exactly once (counted) and never by a course update,
+    the flag is raised only after the course agreed over time (never at the first instant)
+    and dropped only when the course disagreed beyond 3 sigma (each drop counted; the yaw is
+    left alone in this mode), and the final heading error is < 10 deg."""
     run = car(1)
     e = Estimator(cfg("filter.mode=traditional", "init.heading_source=gnss_course"))
     s = score_run(run, e.cfg, est=e)
-    assert e.counters["heading_aligned_from_course"] == 1
-    assert bool(s.aligned[-1])
+    assert e.counters["heading_yaw_from_course"] == 1
     assert s.counters.get("course_accepted", 0) == 0  # aligned once, never a course update
+    assert not bool(s.aligned[0])
+    flags = e.counters["heading_aligned_from_course"]
+    drops = e.counters.get("heading_unflagged_inconsistent", 0)
+    assert flags >= 1
+    assert flags - drops == int(bool(s.aligned[-1]))
+    assert int(np.sum(np.diff(s.aligned.astype(int)) == 1)) == flags
     assert abs(s.euler_err_deg[-1, 2]) < 10.0
 
 

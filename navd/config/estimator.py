@@ -140,6 +140,9 @@ class HeadingSection:
     reset_after: int = _f(10)
     align_speed: float = _f(5.0, "mps")
     max_reverse_speed: float = _f(4.0, "mps")
+    # backwards motion (course > 90 deg from the aligned yaw) for longer than this is a
+    # wrong yaw, not reversing: the yaw is set to the course again (heading_alignment.py)
+    max_reverse: float = _f(30.0, "s")
     # at rest with a gyro too poor to gyrocompass, position/velocity fixes must not move the
     # heading (GnssAiding._heading_hold in navd/core/aiding/gnss.py says why)
     hold_static: bool = _f(True)

@@ -432,14 +432,17 @@ class Estimator:
         self.heading_aligned = False
         src = c.init.heading_source
         speed = math.hypot(fix.vel_n, fix.vel_e)
+        yaw_known = False
         if src == "config":
             yaw = c.init.heading
-            self.heading_aligned = True
+            self.heading_aligned = yaw_known = True
+            self.gnss.course.align.config_heading()
         elif (src == "gnss_course" and speed >= c.heading.align_speed
               and course_may_align(c, self.yaw_bank is not None)):
             yaw = math.atan2(fix.vel_e, fix.vel_n)
-            self.heading_aligned = True
-            self.counters["heading_aligned_from_course"] += 1
+            yaw_known = True
+            # flagged aligned once the course agrees over time (aiding/heading_alignment.py)
+            self.gnss.course.align.yaw_given(self, from_course=True)
         euler_to_mat_into(self.mat_nb, roll, pitch, yaw)
         self.pos[0] = fix.lat_rad
         self.pos[1] = fix.lon_rad
@@ -459,7 +462,7 @@ class Estimator:
             self.counters["level_not_static"] += 1
         P[0, 0] = P[1, 1] = tilt_sd**2
         P[2, 2] = (math.pi / 2) ** 2
-        if self.heading_aligned:
+        if yaw_known:
             # The heading given is a ZYX yaw, the azimuth of the nose; with the nose pitched
             # by theta, a tilt error phi_h about the nose's horizontal direction h moves that
             # azimuth by tan(theta) phi_h, so phi_D = -d_yaw - tan(theta) phi_h: its variance

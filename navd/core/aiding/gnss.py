@@ -133,6 +133,8 @@ class GnssAiding:
             if vel_scale <= 0.0:
                 cnt["vel_rejected_mctls"] += 1
 
+        m_nb = est.mat_nb
+        yaw0 = math.atan2(m_nb[1, 0], m_nb[0, 0])
         if c.gnss.use_position:
             swapped = est.state_at(g.t_us) is True
             m = st.fill_position(est.buf, g.lat_rad, g.lon_rad, g.alt_m, h_sd, v_sd)
@@ -144,6 +146,9 @@ class GnssAiding:
             cnt["gnss_no_velocity"] += 1
         elif c.gnss.use_velocity and vel_scale > 0.0:
             self.course.fuse_with_velocity(est, g, s_sd / math.sqrt(vel_scale), self.hold)
+        # how far this epoch's updates turned the yaw (alignment integrity without a course)
+        d_yaw = math.atan2(m_nb[1, 0], m_nb[0, 0]) - yaw0
+        self.course.align.note_yaw_moved((d_yaw + math.pi) % (2.0 * math.pi) - math.pi)
         self.recovery.after_epoch(est, g.t_us, h_sd, v_sd, s_sd, math.isfinite(g.vel_d))
         return True
 
@@ -170,8 +175,10 @@ class GnssAiding:
         # the threshold (1 in ~74 static epochs of a MEMS receiver) must not end the hold,
         # because that single update can turn the unobservable heading by tens of degrees.
         # Moving off, the IMU raises the filter's speed within a fraction of a second.
+        # Hysteresis: once held, the hold ends only above twice the threshold, so speeds
+        # that hover around it (noise at rest, creeping) do not toggle it epoch by epoch.
         v = est.vel_n
-        still = self.cfg.heading.hold_max_speed
+        still = self.cfg.heading.hold_max_speed * (2.0 if self.hold >= 0 else 1.0)
         if (math.hypot(g.vel_n, g.vel_e) > still
                 and math.sqrt(v[0] * v[0] + v[1] * v[1]) > still):
             return False

@@ -39,6 +39,7 @@ from navd.core.aiding.base import (
     REJECTED,
     SINGULAR,
 )
+from navd.core.aiding.heading_alignment import HeadingAlignment
 from navd.core.chi2 import chi2_quantile
 from navd.core.rotation import exp_into, mat_to_euler, mul3_into
 from navd.types import GnssSample
@@ -156,6 +157,8 @@ class CourseHeading:
         # whose tyres slip in turns (see _learn_slip).  An array, not float attributes: the
         # epoch loop rebinds no Python objects (the allocation test counts them).
         self._slip = np.array([0.0, _SLIP_SD0 * _SLIP_SD0, 0.0])
+        # when the heading may be flagged aligned (not on one sample)
+        self.align = HeadingAlignment(cfg)
 
     @property
     def slip_gain(self) -> float:
@@ -169,6 +172,7 @@ class CourseHeading:
 
     def reset(self) -> None:
         self.rejects = 0
+        self.align.reset()
         self._slip[0] = 0.0
         self._slip[1] = _SLIP_SD0 * _SLIP_SD0
         self._slip[2] = 0.0
@@ -198,8 +202,10 @@ class CourseHeading:
         self._slip[2] = yaw_rate * speed  # centripetal, positive to the right
         # Backwards motion in body x is reversing only at reversing speeds; faster than that
         # it means our yaw is off by more than 90 degrees, which the course must correct.
+        # Only an aligned (confirmed) heading may excuse it: an unconfirmed yaw that points
+        # backwards is more likely wrong (heading_alignment.py).
         vx = m[0, 0] * g.vel_n + m[1, 0] * g.vel_e + m[2, 0] * g.vel_d
-        if vx < 0.0 and speed < c.heading.max_reverse_speed:
+        if vx < 0.0 and speed < c.heading.max_reverse_speed and est.heading_aligned:
             self.status = "waiting: reversing"
             return False
         self.status = "active"
@@ -229,8 +235,13 @@ class CourseHeading:
         cnt = est.counters
         H, z, P = est.meas_H, est.meas_z, est.P
         cfg = self.cfg
+        al = self.align
+        al.check_course(est, g, s_sd, float(self._slip[0]), float(self._slip[1]), self.sd_beta)
+        if al.realign_requested:
+            # backwards for longer than reversing explains: the yaw is wrong by > 90 deg
+            self.align_yaw(est, g.vel_n, g.vel_e, s_sd, extra_sd=cfg.init.heading_sd)
         use_course = self.usable(est, g)
-        if (not use_course and not est.heading_aligned
+        if (not use_course and not al.yaw_set
                 and cfg.init.heading_source == "gnss_course"
                 and course_may_align(cfg, est.yaw_bank is not None)
                 and math.hypot(g.vel_n, g.vel_e) >= cfg.heading.align_speed):
@@ -244,12 +255,13 @@ class CourseHeading:
             est.record_innovation(INNOV_VEL, 0, 3,
                                   est.fuse_block(m, self._gate3, "vel", hold))
             self.check_observed(est)
+            al.check_observed(est, g.t_us)
             return
         # lever-arm-free GNSS velocity for the course, v_gnss - C (w x l); the velocity
         # innovation just computed is v_hat + C (w x l) - v_gnss
         vn_c = g.vel_n - (z[0] - (est.vel_n[0] - g.vel_n))
         ve_c = g.vel_e - (z[1] - (est.vel_n[1] - g.vel_e))
-        if not est.heading_aligned:
+        if not al.yaw_set:
             if swapped:
                 est.state_restore()
             self.align_yaw(est, vn_c, ve_c, s_sd)
@@ -330,10 +342,10 @@ class CourseHeading:
     def check_observed(self, est: Estimator) -> None:
         """Flag heading aligned once manoeuvres made the yaw observable (sigma small); with a
         yaw bank, the bank alone decides (a linearised yaw sigma can shrink on a wrong yaw)."""
-        if (est.yaw_bank is None and not est.heading_aligned
+        if (est.yaw_bank is None and not self.align.yaw_set
                 and est.P[2, 2] < self.cfg.init.aligned_sd**2):
-            est.heading_aligned = True
-            est.counters["heading_aligned_by_observability"] += 1
+            # the flag waits for consistency over time (heading_alignment.py)
+            self.align.yaw_given(est, from_course=False)
 
     def align_yaw(self, est: Estimator, vn: float, ve: float, s_sd: float,
                   extra_sd: float = 0.0) -> None:
@@ -353,6 +365,5 @@ class CourseHeading:
         sd = s_sd / math.hypot(vn, ve)
         P[2, 2] = sd * sd + self.sd_beta**2 + (1.0 * math.pi / 180.0) ** 2 + extra_sd**2
         self.rejects = 0
-        if not est.heading_aligned:
-            est.counters["heading_aligned_from_course"] += 1
-        est.heading_aligned = True
+        # the flag waits for the course to agree over time (heading_alignment.py)
+        self.align.yaw_given(est, from_course=True)

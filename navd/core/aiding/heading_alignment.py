@@ -1,0 +1,223 @@
+"""Alignment integrity: when the heading may be flagged "aligned" (docs/design.md §4).
+
+Why.  The flag tells users (and autopilots fed by navd) that the yaw can be trusted.  Set
+from one sample it lied: a single fast course at start, or a yaw sigma that an EKF shrank
+on a wrong heading (at 2-3.4 m/s with noisy accelerometers the filter converged 90-150 deg
+off with sigma ~1 deg and flagged it aligned), after which a >90 deg error looked like
+reversing below ``[heading] max_reverse_speed_mps`` and blocked every correction (issue 14).
+
+What.  Giving the filter a yaw (from a course, from observability) and *flagging* it aligned
+are separate steps.  The yaw is set as before; the flag waits for evidence over time:
+
+ground profile (course ~ heading)
+    every GNSS epoch at >= ``_CHECK_SPEED`` (below the course update's own speed, so the
+    2-3 m/s cases are checked too) outside fast turns is a *course check*: d = wrap(yaw -
+    course - learned sideslip); the check is *consistent* when |d| < 90 deg and
+    d^2 <= 9 (P_yaw + sigma_course^2 + sigma_sideslip^2).  ``_CONFIRM_N`` consistent checks
+    in a row spanning ``_CONFIRM_S`` set the flag (counted ``heading_aligned_from_course``
+    or ``heading_aligned_by_observability`` by where the yaw came from).
+other profiles (no course; without a yaw bank)
+    the yaw sigma must stay below ``[init] aligned_sd_deg`` for ``_CONFIRM_N`` epochs over
+    ``_CONFIRM_S`` while the GNSS updates move the yaw by less than 3 aligned_sd in total.
+
+A run of consistent-direction checks beyond 3 sigma (``_CONFIRM_N`` over ``_CONFIRM_S``) says
+the yaw has left its sigma: it is set to the course again and the flag drops
+(``heading_reset_inconsistent``; below the course update's speed nothing else would notice).
+Backwards motion (|d| > 90 deg at a check) is reversing only for so long: from the first
+backward check of a run, ``[heading] max_reverse_s`` (30 s) once the flag is set, or
+``_CONFIRM_S`` with ``_CONFIRM_N`` checks while it is not (an unconfirmed yaw that points
+backwards is more likely wrong than a car that reverses before it ever drove forward).
+Beyond that the yaw is taken to be wrong: it is set to the course again (the caller does it)
+and the flag drops until confirmed again (``heading_reset_reverse``).  In traditional mode,
+which does not take course as heading, a failed check only drops the flag
+(``heading_unflagged_*``).  Any yaw reset drops
+the flag the same way.
+
+With a yaw bank (``est.yaw_bank``) the bank owns the flag: this monitor only records the
+yaw's origin and sets the flag where the yaw is set, as before.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from navd.config import EstimatorConfig
+from navd.types import GnssSample
+
+if TYPE_CHECKING:
+    from navd.core.estimator import Estimator
+
+_CHECK_SPEED = 1.5  # m/s: course checks from here (course sigma ~4 deg at 0.1 m/s noise)
+_CONFIRM_N = 5  # consistent checks (epochs) in a row ...
+_CONFIRM_S = 3.0  # ... spanning at least this long, s
+
+_NONE, _COURSE, _OBSERVED = 0, 1, 2
+# state array layout (no Python floats are rebound on the epoch path: the allocation test
+# counts them): yaw origin, consistent run length, its first time (s), backward run length,
+# its first time (s), yaw movement during the run (rad), flag for a requested realignment
+_ORIGIN, _OK_N, _OK_T0, _BACK_N, _BACK_T0, _MOVED, _REALIGN, _BAD_N, _BAD_T0 = range(9)
+
+
+class HeadingAlignment:
+    """When the heading may be flagged aligned (see the module doc); owned by
+    :class:`navd.core.aiding.gnss_heading.CourseHeading`."""
+
+    def __init__(self, cfg: EstimatorConfig) -> None:
+        self.cfg = cfg
+        self.course_checks = cfg.filter.profile == "ground"
+        # traditional mode does not take course as heading: there a failed check only drops
+        # the flag, the yaw is left to the filter
+        self.may_realign = cfg.filter.mode == "completed"
+        self._s = np.zeros(9)
+        self.reset()
+
+    def reset(self) -> None:
+        self._s[:] = 0.0
+        self._s[_OK_T0] = -1.0
+        self._s[_BACK_T0] = -1.0
+        self._s[_BAD_T0] = -1.0
+
+    @property
+    def yaw_set(self) -> bool:
+        """Whether the filter's yaw has been given a value (course, observability, config)."""
+        return bool(self._s[_ORIGIN] != _NONE)
+
+    @property
+    def realign_requested(self) -> bool:
+        return bool(self._s[_REALIGN])
+
+    def yaw_given(self, est: Estimator, from_course: bool) -> None:
+        """The yaw was just set (from a course, or found observable): the flag waits."""
+        s = self._s
+        s[_ORIGIN] = _COURSE if from_course else _OBSERVED
+        s[_OK_N] = 0.0
+        s[_OK_T0] = -1.0
+        s[_BACK_N] = 0.0
+        s[_BACK_T0] = -1.0
+        s[_BAD_N] = 0.0
+        s[_BAD_T0] = -1.0
+        s[_MOVED] = 0.0
+        s[_REALIGN] = 0.0
+        if est.yaw_bank is not None:
+            # the bank owns the flag; where the yaw is set the flag was set before
+            if not est.heading_aligned:
+                est.heading_aligned = True
+                est.counters["heading_aligned_from_course" if from_course
+                             else "heading_aligned_by_observability"] += 1
+            return
+        est.heading_aligned = False
+        est.counters["heading_yaw_from_course" if from_course
+                     else "heading_yaw_observable"] += 1
+
+    def config_heading(self) -> None:
+        """The yaw came from config and is flagged aligned at once (the user says so)."""
+        self._s[_ORIGIN] = _COURSE
+
+    def note_yaw_moved(self, d_yaw: float) -> None:
+        """The epoch's GNSS updates turned the yaw by ``d_yaw`` rad."""
+        self._s[_MOVED] += abs(d_yaw)
+
+    def check_course(self, est: Estimator, g: GnssSample, s_sd: float, slip_gain: float,
+                     slip_gain_var: float, sd_beta: float) -> None:
+        """One epoch's course check (ground profile, yaw set); may set the flag or request a
+        realignment (:attr:`realign_requested`).  ``s_sd``: per-axis speed sigma, m/s;
+        ``slip_gain``, ``slip_gain_var``: the learned sideslip per lateral acceleration
+        (rad per m/s^2) and its variance; ``sd_beta``: the configured sideslip sigma, rad."""
+        s = self._s
+        if not self.course_checks or s[_ORIGIN] == _NONE or est.yaw_bank is not None:
+            return
+        speed = math.hypot(g.vel_n, g.vel_e)
+        if speed < _CHECK_SPEED:
+            return
+        c = self.cfg.heading
+        m = est.mat_nb
+        r = est.rate_b
+        yaw_rate = m[2, 0] * r[0] + m[2, 1] * r[1] + m[2, 2] * r[2]
+        if abs(yaw_rate) > c.max_yaw_rate or abs(yaw_rate) * speed > c.max_lat_accel:
+            return
+        t = g.t_us * 1e-6
+        a_lat = yaw_rate * speed
+        yaw = math.atan2(m[1, 0], m[0, 0])
+        d = ((yaw - math.atan2(g.vel_e, g.vel_n) + slip_gain * a_lat + math.pi)
+             % (2.0 * math.pi) - math.pi)
+        if abs(d) >= 0.5 * math.pi:
+            s[_OK_N] = 0.0
+            s[_BAD_N] = 0.0
+            if s[_BACK_N] == 0.0:
+                s[_BACK_T0] = t
+            s[_BACK_N] += 1.0
+            limit = c.max_reverse if est.heading_aligned else _CONFIRM_S
+            if (t - s[_BACK_T0] >= limit
+                    and (est.heading_aligned or s[_BACK_N] >= _CONFIRM_N)):
+                self._wrong(est, "reverse")
+            return
+        s[_BACK_N] = 0.0
+        var = (float(est.P[2, 2]) + (s_sd / speed) ** 2 + sd_beta * sd_beta
+               + a_lat * a_lat * slip_gain_var)
+        if d * d > 9.0 * var:
+            # forwards but beyond 3 sigma: a few epochs are noise or an unmodelled slip;
+            # a run of them says the yaw has left its sigma (a filter whose tilt a noisy
+            # accelerometer corrupts turns its yaw slowly), and at low speed no course
+            # update is there to notice
+            s[_OK_N] = 0.0
+            if s[_BAD_N] == 0.0:
+                s[_BAD_T0] = t
+            s[_BAD_N] += 1.0
+            if s[_BAD_N] >= _CONFIRM_N and t - s[_BAD_T0] >= _CONFIRM_S:
+                self._wrong(est, "inconsistent")
+            return
+        s[_BAD_N] = 0.0
+        if s[_OK_N] == 0.0:
+            s[_OK_T0] = t
+        s[_OK_N] += 1.0
+        if (not est.heading_aligned and s[_OK_N] >= _CONFIRM_N
+                and t - s[_OK_T0] >= _CONFIRM_S):
+            self._flag(est)
+
+    def check_observed(self, est: Estimator, t_us: int) -> None:
+        """One epoch of the observability rule (profiles without course checks)."""
+        s = self._s
+        if (self.course_checks or est.yaw_bank is not None or est.heading_aligned
+                or s[_ORIGIN] == _NONE):
+            return
+        sd = self.cfg.init.aligned_sd
+        if est.P[2, 2] >= sd * sd or s[_MOVED] > 3.0 * sd:
+            s[_OK_N] = 0.0
+            s[_MOVED] = 0.0
+            return
+        t = t_us * 1e-6
+        if s[_OK_N] == 0.0:
+            s[_OK_T0] = t
+        s[_OK_N] += 1.0
+        if s[_OK_N] >= _CONFIRM_N and t - s[_OK_T0] >= _CONFIRM_S:
+            self._flag(est)
+
+    def _wrong(self, est: Estimator, why: str) -> None:
+        """The checks say the yaw is wrong: ask for a realignment (completed mode) or, where
+        course is not heading (traditional mode), drop the flag until they agree again."""
+        s = self._s
+        if self.may_realign:
+            s[_REALIGN] = 1.0
+            est.counters["heading_reset_" + why] += 1
+            return
+        s[_BACK_N] = 0.0
+        s[_BAD_N] = 0.0
+        if est.heading_aligned:
+            est.heading_aligned = False
+            est.counters["heading_unflagged_" + why] += 1
+
+    def _flag(self, est: Estimator) -> None:
+        est.heading_aligned = True
+        est.counters["heading_aligned_from_course" if self._s[_ORIGIN] == _COURSE
+                     else "heading_aligned_by_observability"] += 1
+
+    @property
+    def status(self) -> str:
+        """For the status record: none / pending / aligned."""
+        o = self._s[_ORIGIN]
+        if o == _NONE:
+            return "no yaw yet"
+        return f"yaw from {'course' if o == _COURSE else 'observability'}"

@@ -1,0 +1,92 @@
+"""Alignment integrity (navd.core.aiding.heading_alignment): the heading is flagged aligned
+only after the course agreed over time, a wrong yaw at low speed is not flagged, and
+reversing does not excuse a >90 deg error forever.  Default config."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from bench_util import load_benchmark
+
+from firmware_sim import generate, load_scenario
+from navd.config import load_config
+from navd.core.rotation import exp_into
+from navd.pipeline import build_estimator
+from navd.types import GnssSample, ImuSample
+
+rb = load_benchmark("robustness")
+
+
+def _slow_noisy(seed: int) -> Any:
+    """car480's route at 2-3.4 m/s with 5x the accelerometer noise (VRW 1.5 m/s/sqrt(s))."""
+    o = {"trajectory.speed0_mps": 2.5, "trajectory.speed": rb._car_speeds(2.0, 3.4),
+         "imu.vrw_mps_per_sqrt_s": 1.5}
+    run = generate(load_scenario("car480", o), seed=seed, progress=False)
+    return rb.score_sim(run, "ground")
+
+
+def test_low_speed_noisy_accelerometer_never_flags_a_wrong_heading() -> None:
+    """GIVEN the issue's false-alignment setting (2-3.4 m/s, noisy accelerometers), seeds 4
+    and 9, where the heading was flagged aligned > 90 deg wrong for 19-25 s before,
+    WHEN run with the default config,
+    THEN the yaw does go more than 40 deg wrong at times (the case is hard) but no aligned
+    instant is more than 90 deg off, and the yaw is reset to the course when the checks
+    disagree."""
+    for seed in (4, 9):
+        r = _slow_noisy(seed)
+        err = np.abs(r.err_deg[:, 2])
+        assert err.max() > 40.0
+        assert r.aligned.any()
+        assert err[r.aligned].max() < 90.0, seed
+        assert r.counters.get("heading_reset_inconsistent", 0) >= 1
+
+
+def test_one_fast_course_at_start_does_not_flag_the_heading() -> None:
+    """GIVEN car480 (10 m/s from the start: the first fix's course sets the yaw),
+    THEN right after navigation starts the heading is not yet flagged aligned, and it is
+    flagged within 10 s, from the course, once."""
+    run = generate(load_scenario("car480", {"duration_s": 30.0}), seed=1, progress=False)
+    est = build_estimator(load_config(None, []))
+    t_start = t_aligned = -1
+    for s in run.samples():
+        est.push(s)
+        if est.initialized and t_start < 0:
+            t_start = est.t_us
+            assert not est.heading_aligned
+            assert est.counters["heading_yaw_from_course"] == 1
+        if est.heading_aligned and t_aligned < 0:
+            t_aligned = est.t_us
+    assert t_start > 0 and t_aligned > 0
+    assert 3.0 <= (t_aligned - t_start) * 1e-6 <= 10.0
+    assert est.counters["heading_aligned_from_course"] == 1
+
+
+def test_reversing_does_not_excuse_a_flipped_heading_forever() -> None:
+    """GIVEN the 2-3.4 m/s drive with the default accelerometer, heading aligned,
+    WHEN at 100 s the filter's yaw is turned by 180 deg (the course now says "reversing",
+    below max_reverse_speed_mps),
+    THEN within max_reverse_s (30 s) + 10 s the yaw is set to the course again (counted)
+    and the heading error is back under 10 deg."""
+    o = {"trajectory.speed0_mps": 2.5, "trajectory.speed": rb._car_speeds(2.0, 3.4)}
+    run = generate(load_scenario("car480", o), seed=2, progress=False)
+    est = build_estimator(load_config(None, []))
+    flip_us, check_us = 100_000_000, 140_000_000
+    flipped = False
+    e = np.zeros((3, 3))
+    err_at_check = math.nan
+    for s in run.samples():
+        est.push(s)
+        if isinstance(s, ImuSample) and not flipped and s.t_us >= flip_us:
+            assert est.heading_aligned
+            exp_into(e, 0.0, 0.0, math.pi)
+            est.mat_nb[:, :] = e @ est.mat_nb
+            flipped = True
+        if isinstance(s, GnssSample) and s.t_us >= check_us and math.isnan(err_at_check):
+            k = min(np.searchsorted(run.truth_t_us, s.t_us), len(run.truth_t_us) - 1)
+            yaw = math.atan2(est.mat_nb[1, 0], est.mat_nb[0, 0])
+            d = yaw - float(run.truth_euler[k, 2])
+            err_at_check = abs(math.degrees((d + math.pi) % (2 * math.pi) - math.pi))
+    assert est.counters["heading_reset_reverse"] >= 1
+    assert err_at_check < 10.0
