@@ -5,14 +5,17 @@ asyncio.Queue adds (navd's input -> estimator hand-off).
     python benchmarks/loop_floor.py [--seconds 10] [--loop uvloop|asyncio] [--json PATH]
 
 A sender subprocess paces 52-byte datagrams at 1 kHz over loopback; this process receives
-them with a no-op protocol ("noop"), then with protocol -> Queue -> task ("queue"), and
-reports its own CPU (user + system, getrusage) per mode as % of one core and per datagram.
+them with a no-op protocol ("noop"), then with protocol -> Queue -> task ("queue"), then
+with protocol -> deque + one parked future -> task ("deque": what the hand-off costs without
+asyncio.Queue's bookkeeping), and reports its own CPU (user + system, getrusage) per mode
+as % of one core and per datagram.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import collections
 import json
 import resource
 import subprocess
@@ -38,6 +41,8 @@ while time.monotonic() - t0 < seconds:
 async def measure(mode: str, seconds: float) -> dict[str, Any]:
     loop = asyncio.get_running_loop()
     q: asyncio.Queue[bytes] = asyncio.Queue()
+    dq: collections.deque[bytes] = collections.deque()
+    waiter: list[asyncio.Future[None]] = []  # the parked consumer's future, if any
     n = 0
 
     class Proto(asyncio.DatagramProtocol):
@@ -45,18 +50,32 @@ async def measure(mode: str, seconds: float) -> dict[str, Any]:
             nonlocal n
             if mode == "queue":
                 q.put_nowait(data)
-            else:
+            elif mode == "deque":
+                dq.append(data)
+                if waiter:
+                    fut = waiter.pop()
+                    if not fut.done():
+                        fut.set_result(None)
+            else:  # noop, and inline: the consumer's work done right here
                 n += 1
 
     async def consume() -> None:
         nonlocal n
+        if mode == "queue":
+            while True:
+                await q.get()
+                n += 1
         while True:
-            await q.get()
+            while not dq:
+                fut = loop.create_future()
+                waiter.append(fut)
+                await fut
+            dq.popleft()
             n += 1
 
     transport, _ = await loop.create_datagram_endpoint(Proto, local_addr=("127.0.0.1", 0))
     port = transport.get_extra_info("sockname")[1]
-    task = loop.create_task(consume()) if mode == "queue" else None
+    task = loop.create_task(consume()) if mode in ("queue", "deque") else None
     r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.monotonic()
     sender = subprocess.Popen([sys.executable, "-c", _SENDER, str(port), str(seconds)])
     while sender.poll() is None:
@@ -79,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
 
     async def both() -> list[dict[str, Any]]:
-        return [await measure(m, a.seconds) for m in ("noop", "queue")]
+        return [await measure(m, a.seconds) for m in ("noop", "queue", "deque")]
 
     if a.loop == "uvloop":
         import uvloop

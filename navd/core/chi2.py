@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 
 
@@ -36,6 +37,7 @@ def _normal_quantile(p: float) -> float:
     return 0.5 * (lo + hi)
 
 
+@functools.cache  # the same few gates for every estimator built
 def chi2_quantile(p: float, dof: int) -> float:
     """x with P(chi2_dof <= x) = p (p in (0, 1)).
 
@@ -49,6 +51,10 @@ def chi2_quantile(p: float, dof: int) -> float:
     lo, hi = 0.0, 10.0 * dof + 100.0
     for _ in range(200):
         mid = 0.5 * (lo + hi)
+        if mid in (lo, hi):
+            # lo and hi are adjacent floats: every further step returns this same value
+            # (~60 steps instead of 200; estimators are built at start-up, issue 18)
+            return mid
         if chi2_cdf(mid, dof) < p:
             lo = mid
         else:

@@ -22,6 +22,7 @@ IMU gap instead.
 from __future__ import annotations
 
 import asyncio
+import collections
 import logging
 import time
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, TypeVar
@@ -71,11 +72,19 @@ class ReceiveClock:
 
 
 class SampleQueue:
-    """Bounded asyncio queue of (recv_t_ns, sample), dropping the oldest when full."""
+    """Bounded FIFO of (recv_t_ns, sample) from the links' callbacks to the estimator task,
+    dropping the oldest when full.
+
+    A deque and the waiting consumer's future rather than asyncio.Queue: at 1 kHz nearly
+    every sample finds the consumer waiting, and asyncio.Queue's bookkeeping around that
+    hand-off (getter and putter lists, the unfinished-task count and its Event) cost about as
+    much again as waking the consumer (benchmarks/loop_floor.py, issue 18).
+    """
 
     def __init__(self, maxsize: int, log: RateLimitedLog) -> None:
         self.maxsize = maxsize
-        self._q: asyncio.Queue[QueueItem] = asyncio.Queue(maxsize)
+        self._q: collections.deque[QueueItem] = collections.deque()
+        self._waiter: asyncio.Future[None] | None = None  # the parked consumer, if any
         self._log = log
         self.drops = 0
         self.high_water = 0
@@ -88,15 +97,20 @@ class SampleQueue:
 
     def _put(self, item: QueueItem) -> None:
         q = self._q
-        if q.full():
-            q.get_nowait()
+        if len(q) >= self.maxsize:
+            q.popleft()
             self.drops += 1
             self._log.warn("queue_drops", "queue full (%d samples): dropped the oldest; "
                            "%d dropped so far", self.maxsize, self.drops)
-        q.put_nowait(item)
-        n = q.qsize()
+        q.append(item)
+        n = len(q)
         if n > self.high_water:
             self.high_water = n
+        w = self._waiter
+        if w is not None:
+            self._waiter = None
+            if not w.done():
+                w.set_result(None)
 
     def close(self) -> None:
         """No more input; the consumer gets what is queued, then None."""
@@ -105,10 +119,19 @@ class SampleQueue:
             self._put(None)
 
     async def get(self) -> QueueItem:
-        return await self._q.get()
+        q = self._q
+        while not q:
+            w = asyncio.get_running_loop().create_future()
+            self._waiter = w
+            try:
+                await w
+            finally:  # also when the consumer is cancelled while waiting
+                if self._waiter is w:
+                    self._waiter = None
+        return q.popleft()
 
     def qsize(self) -> int:
-        return self._q.qsize()
+        return len(self._q)
 
 
 DecoderT = TypeVar("DecoderT", MavlinkDecoder, "DronecanDecoder")
