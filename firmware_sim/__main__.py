@@ -94,9 +94,11 @@ def cmd_generate(args: argparse.Namespace) -> int:
 
 
 def cmd_list(_: argparse.Namespace) -> int:
-    for name in builtin_scenarios():
+    names = builtin_scenarios()
+    width = max(len(n) for n in names)
+    for name in names:
         sc = load_scenario(name)
-        print(f"{name:12s} {sc.duration:8.0f} s  {sc.description}")
+        print(f"{name:{width}s} {sc.duration:8.0f} s  {sc.description}")
     return 0
 
 
