@@ -234,6 +234,15 @@ class YawBank:
         # aligned: watch for a main heading that left the bank
         if abs(off) <= 3.0 * comb:
             s[_LAST_AGREE_T] = t
+        # a trusted bank more than 2 sigma (of both) away: the heading may be off by more
+        # than its sigma says; it is not called aligned until the two agree again (within
+        # 1.5 sigma) or the bank resets it (3 sigma for agree_time, below)
+        if trusted and abs(off) > max(2.0 * comb, c.agree):
+            if est.heading_aligned:
+                est.heading_aligned = False
+                est.counters["yaw_bank_suspect"] += 1
+        elif not est.heading_aligned and abs(off) <= 1.5 * comb:
+            est.heading_aligned = True
         if trusted and abs(off) > max(3.0 * comb, c.agree):
             if s[_DIS_T0] < 0.0:
                 s[_DIS_T0] = t

@@ -437,13 +437,13 @@ def bank_fix(bb: Arr, sb: Arr, par: Arr, t_us: float, tol_us: float, vn: float, 
     bb[H_EXC] = math.sqrt(e2) if e2 > 0.0 else 0.0
     q_v = q_v_rate * T + q_a * T * T
     q_d = q_d_rate * T + q_scale * turned
+    q_b = q_b_rate * T
     excited = bb[H_EXC] >= min_accel
     best = -math.inf
     nis_w = 0.0
     for i in range(n):
         o = MEM + i * MW
-        predict_member(bb, o, a_n, a_e, T, q_v, q_d, q_r_rate * T, q_b_rate * T,
-                       q_v_rate * T)
+        predict_member(bb, o, a_n, a_e, T, q_v, q_d, q_r_rate * T, q_b, q_v_rate * T)
         half_logdet = update_member(bb, o, vn, ve, u_n, u_e, r_var)
         nis = bb[o + M_NIS]
         nis_w += bb[o + M_W] * min(nis, 1e6)
