@@ -143,7 +143,7 @@ def test_gnss_lock_out_is_reported_as_such(drive: SimRun, monkeypatch: pytest.Mo
 def test_no_output_and_stall_are_emergency(monkeypatch: pytest.MonkeyPatch) -> None:
     """GIVEN a navigating daemon whose last output was 3 s ago, then one whose input stopped,
     WHEN its state and HEARTBEAT status are read,
-    THEN both are EMERGENCY; initializing is STANDBY."""
+    THEN both are EMERGENCY; without any sink it is navigating; initializing is STANDBY."""
     d, _ = _daemon()
     monkeypatch.setattr(type(d.est), "initialized", property(lambda self: True))
     d.est.t_us = 5_000_000
@@ -152,8 +152,10 @@ def test_no_output_and_stall_are_emergency(monkeypatch: pytest.MonkeyPatch) -> N
     assert d.state() == NO_OUTPUT and d._mav_state() == MAV_STATE_EMERGENCY
     d._progress_at = now - 10.0
     assert d.state() == "stalled" and d._mav_state() == MAV_STATE_EMERGENCY
-    monkeypatch.setattr(type(d.est), "initialized", property(lambda self: False))
     d._progress_at = now
+    d.sinks = []  # no output configured (e.g. only --record): nothing can be missing
+    assert d.state() == "navigating" and d._mav_state() == MAV_STATE_ACTIVE
+    monkeypatch.setattr(type(d.est), "initialized", property(lambda self: False))
     assert d.state() == "initializing" and d._mav_state() == MAV_STATE_STANDBY
 
 

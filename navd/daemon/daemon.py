@@ -229,6 +229,7 @@ class Daemon:
         # (HEARTBEAT ACTIVE) needs outputs actually going out, not just a navigating estimator
         self._output_at = -math.inf
         self._nav_since = -math.inf
+        self._output_t_us = -1  # sensor time of the last published solution
         # sensor times at which a valid GNSS fix last reached the estimator (counter "gnss")
         # and a GNSS position was last fused ("pos_accepted"); -1: not since this start
         self._gnss_seen_t_us = -1
@@ -568,6 +569,7 @@ class Daemon:
         now_ns = time.monotonic_ns()
         sink.latency.add(now_ns - recv_ns)
         self._output_at = now_ns * 1e-9
+        self._output_t_us = sol.t_us
 
     # -- periodic tasks -----------------------------------------------------------------------
 
@@ -676,7 +678,7 @@ class Daemon:
             if not why:
                 self.notifier.watchdog()
             else:
-                self.rlog.warn("watchdog", "withholding WATCHDOG=1: %s (t_us=%d, state %s)",
+                self.rlog.warn(f"watchdog {why}", "withholding WATCHDOG=1: %s (t_us=%d, state %s)",
                                why, t, self.state())
             last = t
             last_tick = time.monotonic()
@@ -687,6 +689,7 @@ class Daemon:
         while IMU data flows into levelling)."""
         if not sensor_moved:
             return "no sensor-time progress since the last tick"
+        self._note_sensor_progress()  # the status task's note may be a period old
         state = self.state()
         if state in (NO_OUTPUT, "stalled"):
             return state
@@ -696,11 +699,14 @@ class Daemon:
 
     # -- status -------------------------------------------------------------------------------
 
-    def _note_progress(self) -> None:
-        now = time.monotonic()
+    def _note_sensor_progress(self) -> None:
         if self.est.t_us != self._progress_t_us:
             self._progress_t_us = self.est.t_us
-            self._progress_at = now
+            self._progress_at = time.monotonic()
+
+    def _note_progress(self) -> None:
+        now = time.monotonic()
+        self._note_sensor_progress()
         t_prev, imu_prev, gnss_prev = self._rate_prev
         imu, gnss = self.est.counters.get("imu", 0), self.est.counters.get("gnss", 0)
         self._note_gnss()
@@ -721,8 +727,13 @@ class Daemon:
             return "stalled"
         if not self.est.initialized:
             return "initializing"
-        if self.sinks and now - max(self._output_at, self._nav_since) > self._output_limit_s():
-            return NO_OUTPUT
+        # "no output" while input still flows: if the input stopped, that is "stalled"
+        # (a second later), not a failure of the outputs
+        if self.sinks:
+            limit = self._output_limit_s()
+            if (now - max(self._output_at, self._nav_since) > limit
+                    and self.est.t_us - self._output_t_us > limit * 1e6):
+                return NO_OUTPUT
         return self._gnss_state()
 
     def _note_gnss(self) -> None:

@@ -25,7 +25,7 @@ from typing import Any, cast
 import serial
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from navd.diag import Counters
+from navd.diag import Counters, RateLimitedLog
 from navd.io.adapter import SampleDelivery
 from navd.io.common import SampleCallback, monotonic_us
 from navd.io.mavlink.decode import MavlinkDecoder
@@ -44,6 +44,12 @@ __all__ = [
 
 # The name the single-file adapter logged under; log configuration may select it.
 _log = logging.getLogger("navd.io.mavlink")
+
+# UDP junk budget per sending address (MavlinkUdpProtocol._note_junk)
+JUNK_WINDOW_US = 1_000_000
+JUNK_BUDGET_BYTES = 32_768
+MUTE_US = 1_000_000
+_MAX_PEERS = 64
 
 
 @dataclass(frozen=True)
@@ -83,6 +89,12 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
     def _init_link(self) -> None:
         self.transport: asyncio.DatagramTransport | None = None
         self.last_peer: tuple[Any, ...] | None = None
+        # per sending address: (start of its window us, junk bytes in it); muted until us
+        self._junk: dict[tuple[Any, ...], tuple[int, int]] = {}
+        self._muted: dict[tuple[Any, ...], int] = {}
+        self._mute_log: RateLimitedLog | None = None
+        # per address: receive time (us) of its last datagram that gave samples
+        self._useful: dict[tuple[Any, ...], int] = {}
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         # The selector loop's datagram transport does not subclass asyncio.DatagramTransport
@@ -91,8 +103,58 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
 
     def datagram_received(self, data: bytes, addr: tuple[Any, ...]) -> None:
         self.last_peer = addr
-        if self.decoder is not None:
-            self._deliver(self.decoder.feed_datagram(data, self.clock_us()))
+        dec = self.decoder
+        if dec is None:
+            return
+        now = self.clock_us()
+        if self._muted and addr in self._muted:
+            if now < self._muted[addr]:
+                self.counters.inc("datagrams_muted")
+                return
+            del self._muted[addr]
+        c = self.counters
+        junk0 = c["junk_bytes"]
+        samples = dec.feed_datagram(data, now)
+        junk = c["junk_bytes"] - junk0
+        if samples:
+            if len(self._useful) >= _MAX_PEERS and addr not in self._useful:
+                self._useful.clear()
+            self._useful[addr] = now
+        if junk:
+            self._note_junk(addr, junk, now)
+        self._deliver(samples)
+
+    def _note_junk(self, addr: tuple[Any, ...], junk: int, now: int) -> None:
+        """Mute a sending address that sent more than JUNK_BUDGET_BYTES of bytes in no
+        valid frame within JUNK_WINDOW_US: its datagrams are then refused unread for
+        MUTE_US (counted ``datagrams_muted``).  Scanning junk costs up to ~0.6 us per byte
+        (FE/FD-dense patterns), so a 10 Mbit/s flood would take most of a core; a real
+        sender's datagrams are frames, and its junk (a torn frame now and then) stays far
+        below the budget.  A sender other than the flooder keeps being read, and an address
+        that delivered samples within the last window is never muted (junk sent in its name
+        from elsewhere must not silence the real sender; it costs CPU instead)."""
+        if now - self._useful.get(addr, -JUNK_WINDOW_US) < JUNK_WINDOW_US:
+            return
+        start, n = self._junk.get(addr, (now, 0))
+        if now - start > JUNK_WINDOW_US:
+            start, n = now, 0
+        n += junk
+        if n <= JUNK_BUDGET_BYTES:
+            if len(self._junk) >= _MAX_PEERS and addr not in self._junk:
+                self._junk.clear()  # spoofed addresses must not grow it without bound
+            self._junk[addr] = (start, n)
+            return
+        self._junk.pop(addr, None)
+        if len(self._muted) >= _MAX_PEERS:
+            self._muted.clear()
+        self._muted[addr] = now + MUTE_US
+        self.counters.inc("peer_muted")
+        if self._mute_log is None:
+            interval = self.decoder.config.warn_interval_s if self.decoder else 5.0
+            self._mute_log = RateLimitedLog(_log, interval)
+        self._mute_log.warn("peer_muted", "MAVLink: %s sent over %d bytes of junk (no valid "
+                        "frame) within %.1f s: its datagrams are refused unread for %.1f s",
+                        addr, JUNK_BUDGET_BYTES, JUNK_WINDOW_US * 1e-6, MUTE_US * 1e-6)
 
     def error_received(self, exc: Exception) -> None:
         # ICMP port-unreachable on a connected udpout socket lands here; the link lives on.
