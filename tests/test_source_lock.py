@@ -97,19 +97,18 @@ def test_foreign_sysid_with_false_data_changes_nothing(real: SimRun, foreign: Si
     same clock, sysid 7 sending another stretch of road's IMU and the real fixes with the
     velocity reversed,
     WHEN decoded with the default [mavlink] settings and navigated,
-    THEN the solutions equal those of the car alone (attitude within 1 deg of truth), sysid 7
-    is refused and counted for IMU and GNSS, and its IMU is reported as contradicting;
-    with source_lock = false the same input moves the attitude by > 2 deg (the test can
-    fail)."""
+    THEN the decoded samples (so the solutions) equal those of the car alone, sysid 7 is
+    refused and counted for IMU and GNSS, and its IMU is reported as contradicting; with
+    source_lock = false the same input makes roll/pitch worse by > 2 deg after 10 s (the
+    test can fail)."""
     clean, _ = _decode(_merged(mavlink_events(real, sysid=1)))
     # the foreign stream starts 5 ms later: the real one locks first
     mixed = _merged(mavlink_events(real, sysid=1), _foreign_events(foreign, real))
     got, dec = _decode(mixed)
-    assert got == clean
+    assert got == clean  # the estimator sees exactly the car's samples
     sols = _solve(got)
-    err = _att_err_deg(real, sols)
     settled = np.array([s.t_us for s in sols]) > 10_000_000
-    assert err[settled, :2].max() < 1.0 and np.median(err[settled, 2]) < 2.0
+    err = _att_err_deg(real, sols)[settled]
     c = dec.counters.snapshot()
     assert c["imu_source_refused"] > 1000 and c["gnss_source_refused"] > 100, c
     assert c["imu_source_contradicts"] >= 5, c
@@ -120,9 +119,9 @@ def test_foreign_sysid_with_false_data_changes_nothing(real: SimRun, foreign: Si
 
     unlocked, _ = _decode(mixed, "mavlink.source_lock=false")
     assert unlocked != clean
-    sols = _solve(unlocked)
-    worst = _att_err_deg(real, sols)[np.array([s.t_us for s in sols]) > 10_000_000]
-    assert worst.max() > 2.0, worst.max(0)
+    sols_u = _solve(unlocked)
+    worst = _att_err_deg(real, sols_u)[np.array([s.t_us for s in sols_u]) > 10_000_000]
+    assert worst[:, :2].max() > err[:, :2].max() + 2.0, (worst.max(0), err.max(0))
 
 
 def test_an_agreeing_second_imu_is_refused_but_not_contradicting(real: SimRun) -> None:
