@@ -155,3 +155,17 @@ def test_stale_kernel_is_compiled_not_loaded(build: Path, jit_run: Any, tmp_path
     assert "navd.core.rotation:mat_to_quat" not in st["stale"], st["stale"]
     assert st["compiled"] >= 1 and st["aot"] >= 1, st
     np.testing.assert_allclose(res["radii"], 2.0 * np.array(jit_run["radii"]), rtol=1e-15)
+
+
+def test_navd_warmup_reports_the_prebuilt_kernels(build: Path, tmp_path: Path) -> None:
+    """GIVEN the build and an empty numba cache, WHEN `navd warmup --strict --json` runs,
+    THEN it exits 0 and reports the kernels as loaded from the build, none compiled."""
+    env = {**os.environ, "PYTHONPATH": str(REPO), "NUMBA_CACHE_DIR": str(tmp_path / "nc"),
+           "NAVD_AOT_DIR": str(build)}
+    env.pop("NAVD_AOT", None)
+    r = subprocess.run([sys.executable, "-m", "navd", "warmup", "--strict", "--json"],
+                       env=env, cwd=tmp_path, capture_output=True, text=True, timeout=600,
+                       check=False)
+    assert r.returncode == 0, r.stdout + r.stderr[-3000:]
+    st = json.loads(r.stdout.strip().splitlines()[-1])
+    assert st["state"] == "fresh" and st["aot"] >= 10 and st["compiled"] == 0, st
