@@ -17,8 +17,10 @@ venv: $(STAMP)
 # The estimator's kernels compiled ahead of time (navd/core/_aot; pip install builds them,
 # setup.py): rebuilt here when a source under navd/core or numba changed since, so a run or
 # the tests never start from stale ones (which navd would skip and JIT-compile, slowly).
+# A failed build does not stop the tests (tests/test_aot.py fails on it instead).
 kernels: $(STAMP)
-	$(BIN)/python -m navd.core.aot_build --if-stale --quiet
+	$(BIN)/python -m navd.core.aot_build --if-stale --quiet || \
+	  echo "navd: kernels not prebuilt (see above); navd compiles them when it starts"
 
 run demo: kernels
 	$(BIN)/navd demo

@@ -138,7 +138,11 @@ def build(out: Path) -> dict[str, Any]:
         for key, disp in sorted(_jit.KERNELS.items()):
             if not disp.overloads:
                 continue
-            files = sorted(closure_files(disp))
+            try:
+                files = sorted(closure_files(disp))
+            except Exception as exc:  # its sources cannot be told: leave it to the JIT
+                print(f"navd kernels: {key} not prebuilt: {exc}", file=sys.stderr)
+                continue
             stamp = _jit.stamp_of(files)
             cache = _jit.prebuilt_cache(disp.py_func, tmp, stamp)
             for sig, cres in disp.overloads.items():
