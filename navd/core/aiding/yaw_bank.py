@@ -110,6 +110,11 @@ class YawBank:
         par[yk.P_R0] = c.rate_sd
         par[yk.P_B0] = c.accel_bias_sd
         self._par = par
+        # the kernels a trial or a reset needs run for the first time only when the bank is
+        # trusted, mid-flight; compile (or load) them now, with the estimator, on scratch
+        # buffers, so that an alignment never waits for numba
+        yk.bank_rotate(np.zeros(yk.SIZE), 0.0)
+        yk.rotate_main(np.zeros(st.SIZE), 0.0)
         self._trial_gate = [0.0] + [chi2_quantile(cfg.filter.gate_prob, 3 * k)
                                     for k in range(1, c.trial_epochs + 1)]
         self.reset()

@@ -500,16 +500,6 @@ def bank_rotate(bb: Arr, d: float) -> None:
 
 
 @jit
-def bank_rate_shift(bb: Arr, dr: float) -> None:
-    """The main filter's yaw drift was reduced by ``dr`` rad/s (its gyro bias corrected):
-    every hypothesis' offset rate loses it too."""
-    n = int(bb[H_N])
-    for i in range(n):
-        bb[MEM + i * MW + 3] -= dr
-    composite(bb)
-
-
-@jit
 def main_yaw(sb: Arr) -> float:
     """ZYX yaw of the main filter's attitude, rad."""
     return math.atan2(sb[st.MAT + 3], sb[st.MAT])
