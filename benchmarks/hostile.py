@@ -23,7 +23,9 @@ another, each for ``--storm-s`` seconds with a quiet interval between, each boun
               bytes) and reports its cost per frame
 
 Per storm: CPU of the navd process (% of one core, utime + stime) and its excess over the
-baseline, output rate (ATTITUDE received per second), longest gap between ATTITUDE receipts,
+baseline, output rate (ATTITUDE received per second), longest gap between ATTITUDE receipts
+(with the longest lateness of the real sender in the same window: a gap this machine's load
+put into the input is not navd's),
 estimator resets, attitude error against simulator truth at the output's sensor time (max
 |roll|, |pitch|, RMS and max |yaw|), RSS after the storm, and the storm's own counters.
 
@@ -156,6 +158,9 @@ class Pacer(threading.Thread):
         self.sent = 0
         self.errors = 0
         self.stop_at = math.inf
+        # (host time, seconds late) of every send more than 20 ms after its due time: a
+        # stalled sender (this machine's load) shows up as an output gap that is not navd's
+        self.late: list[tuple[float, float]] = []
 
     def run(self) -> None:
         for t, f in self.frames:
@@ -165,6 +170,8 @@ class Pacer(threading.Thread):
             delay = due - time.monotonic()
             if delay > 0.0005:
                 time.sleep(delay)
+            elif delay < -0.02:
+                self.late.append((time.monotonic(), -delay))
             try:
                 self.sock.sendto(f, self.addr)
                 self.sent += 1
@@ -284,7 +291,10 @@ def main(argv: list[str] | None = None) -> int:
                 clock = {k: v - (before.get("clock") or {}).get(k, 0)
                          for k, v in (after.get("clock") or {}).items()
                          if isinstance(v, int)}
+                late = [d for h, d in sender.late if h0 <= h < h1]
                 r = {"sent": p.sent, "send_errors": p.errors,
+                     "real_sender_late_max_ms": round(max(late, default=0.0) * 1e3, 1),
+                     "load_avg": os.getloadavg()[0],
                      "mbit_per_s": round(sum(len(f) for _, f in storms[n][:p.sent]) * 8
                                          / (h1 - h0) / 1e6, 2),
                      "cpu_pct_one_core": round(100.0 * (c1 - c0) / (h1 - h0), 1),
@@ -338,7 +348,8 @@ def _verdicts(results: dict[str, Any]) -> None:
 
 def _table(results: dict[str, Any]) -> None:
     hdr = (f"{'storm':<11} {'sent':>7} {'Mbit/s':>7} {'CPU %':>6} {'out Hz':>7} "
-           f"{'gap ms':>7} {'resets':>6} {'r/p max':>8} {'yaw rms':>8} {'yaw max':>8} "
+           f"{'gap ms':>7} {'late ms':>7} {'resets':>6} {'r/p max':>8} {'yaw rms':>8} "
+           f"{'yaw max':>8} "
            f"{'RSS MB':>7} {'target':>7}")
     print(hdr)
     for n, r in results["storms"].items():
@@ -348,7 +359,8 @@ def _table(results: dict[str, Any]) -> None:
             continue
         met = r.get("target_met")
         print(f"{n:<11} {r['sent']:>7} {r['mbit_per_s']:>7} {r['cpu_pct_one_core']:>6} "
-              f"{r['output_hz']:>7} {r['longest_gap_ms']:>7} {r['resets']:>6} "
+              f"{r['output_hz']:>7} {r['longest_gap_ms']:>7} "
+              f"{r['real_sender_late_max_ms']:>7} {r['resets']:>6} "
               f"{r['max_roll_pitch_deg']:>8} {r['yaw_rms_deg']:>8} {r['yaw_max_deg']:>8} "
               f"{r['rss_kb'] / 1024:>7.1f} {'' if met is None else ('met' if met else 'NOT'):>7}")
 

@@ -202,3 +202,49 @@ def test_fuzz_mutated_recordings(src: Source, tmp_path: Path,
     # the mutations reach both outcomes: damage found, and damage the replay survives
     assert codes.get(2, 0) >= 10 and codes.get(0, 0) >= 10, codes
 
+
+
+def test_fuzz_mutated_replay_csvs(src: Source, tmp_path: Path,
+                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN 60 copies of a 3 s IMU + GNSS replay CSV pair, one of the two files with 1-8
+    random bytes changed, inserted or deleted, or cut short (seeded),
+    WHEN each pair is replayed,
+    THEN none raises: each exits 0, 1 (no solution, or more than --max-skipped rows
+    skipped) or 2 (not a CSV / not UTF-8 / a column missing, one line), and no .part is
+    left."""
+    short = Source(src.imu_t_us[:300], src.dt_us[:300], src.gyro[:300], src.accel[:300],
+                   [g for g in src.gnss if g.t_us <= src.imu_t_us[299]], src.ref_t_us,
+                   src.ref_euler)
+    imu0, gnss0 = tmp_path / "imu0.csv", tmp_path / "gnss0.csv"
+    write_rate_csv(short, imu0)
+    _gnss_csv(short, gnss0)
+    clean = {"imu": imu0.read_bytes(), "gnss": gnss0.read_bytes()}
+    rng = random.Random(7)
+    codes: dict[int, int] = {}
+    for case in range(60):
+        which = rng.choice(["imu", "gnss"])
+        d = bytearray(clean[which])
+        for _ in range(rng.randint(1, 8)):
+            op = rng.random()
+            i = rng.randrange(len(d))
+            if op < 0.6:
+                d[i] = rng.choice([rng.randrange(256), ord(","), ord("\n"), ord('"'), 0xFF])
+            elif op < 0.8:
+                d.insert(i, rng.randrange(256))
+            elif op < 0.95:
+                del d[i]
+            else:
+                del d[i:]
+                break
+        imu, gnss = tmp_path / f"imu{case}.csv", tmp_path / f"gnss{case}.csv"
+        imu.write_bytes(bytes(d) if which == "imu" else clean["imu"])
+        gnss.write_bytes(bytes(d) if which == "gnss" else clean["gnss"])
+        out = tmp_path / f"s{case}.csv"
+        rc = replay_main(["--imu", str(imu), "--gnss", str(gnss), "--out", str(out),
+                          "--quiet"])
+        err = capsys.readouterr().err
+        assert rc in (0, 1, 2), (case, rc, err)
+        assert "Traceback" not in err
+        assert not list(tmp_path.glob("*.part")), case
+        codes[rc] = codes.get(rc, 0) + 1
+    assert codes.get(0, 0) >= 10, codes
