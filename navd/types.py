@@ -85,7 +85,8 @@ class NavSolution:
         att_sd_rad: 1-sigma of (roll, pitch, yaw), rad.
         gyro_bias_rps: estimated gyro bias, body FRD, rad/s.
         accel_bias_mps2: estimated accelerometer bias, body FRD, m/s^2.
-        heading_aligned: True once heading is initialised from a trusted source.
+        heading_aligned: True once the heading is flagged aligned: given a value from a trusted
+            source and confirmed over time (docs/design.md §4, alignment integrity).
         rate_b: last bias-compensated angular rate, body FRD, rad/s.
         pos_sd_m: 1-sigma of the position along (north, east, down), m (NaN: not given).
         vel_sd_mps: 1-sigma of vel_n along (north, east, down), m/s (NaN: not given).
@@ -94,6 +95,9 @@ class NavSolution:
         heading_resets: times the heading was reset without a measurement update (a yaw
             reset to the GNSS course, a reset after a velocity lock-out, a restart) since the
             estimator was made; a change tells a consumer the heading jumped.
+        heading_initialised: the heading has a value from a trusted source (config, a first
+            GNSS course, observability), confirmed or not; always True when
+            ``heading_aligned`` is.
     """
 
     t_us: int
@@ -116,6 +120,7 @@ class NavSolution:
     vel_sd_mps: tuple[float, float, float] = (math.nan, math.nan, math.nan)
     gnss_age_us: int = -1
     heading_resets: int = 0
+    heading_initialised: bool = False
 
     def heading_good(self, max_sd_rad: float) -> bool:
         """The heading is initialised *and* its 1-sigma is within ``max_sd_rad``: what an

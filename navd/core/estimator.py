@@ -584,7 +584,8 @@ class Estimator:
             accel_bias_mps2=(float(ba[0]), float(ba[1]), float(ba[2])),
             heading_aligned=self.heading_aligned,
             rate_b=(float(w[0]), float(w[1]), float(w[2])), pos_sd_m=pos_sd,
-            vel_sd_mps=vel_sd, gnss_age_us=age, heading_resets=self.heading_resets)
+            vel_sd_mps=vel_sd, gnss_age_us=age, heading_resets=self.heading_resets,
+            heading_initialised=self.heading_aligned or self.gnss.course.align.yaw_set)
 
     @property
     def heading_resets(self) -> int:

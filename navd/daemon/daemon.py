@@ -76,6 +76,7 @@ _log = logging.getLogger("navd")
 # without vertical velocity, a DOV grid that ends): informational.  Every other counter
 # that grows is a refusal of input and gets a (rate-limited) warning.
 _INFO_COUNTERS = frozenset({"imu", "gnss", "nav_start", "heading_aligned_from_course",
+                            "heading_yaw_from_course", "heading_yaw_observable",
                             "heading_aligned_by_observability", "gnss_delayed", "pol_delayed",
                             "gnss_no_velocity", "dov_off_grid", "heading_held"})
 
@@ -816,12 +817,14 @@ class Daemon:
 
     def _heading_words(self) -> str:
         """The heading's state as the Zenoh ``aligned`` flag has it (navd.io.zenoh): a first
-        course sets the estimator's flag with a wide sigma; aligned means within
-        ``[init] aligned_sd_deg``."""
+        course gives the yaw a value with a wide sigma (initialised); aligned means flagged
+        (confirmed over time) and within ``[init] aligned_sd_deg``."""
         est = self.est
-        if not (est.heading_aligned and est.initialized):
+        if not est.initialized:
             return "heading not aligned"
         sol = est.solution()
+        if not (sol.heading_initialised or sol.heading_aligned):
+            return "heading not aligned"
         if sol.heading_good(self.cfg.nav.estimator.init.aligned_sd):
             return "heading aligned"
         return (f"heading coarse (sigma {math.degrees(sol.att_sd_rad[2]):.1f} deg, "

@@ -201,7 +201,7 @@ class FoxgloveMessages:
             "euler_deg": [d(sol.roll_rad), d(sol.pitch_rad), d(sol.yaw_rad)],
             "sigma_deg": [d(v) for v in sol.att_sd_rad],
             "aligned": sol.heading_good(self.aligned_sd_rad),
-            "heading_initialised": bool(sol.heading_aligned),
+            "heading_initialised": bool(sol.heading_initialised or sol.heading_aligned),
             "heading_resets": sol.heading_resets,
             "gnss_age_s": sol.gnss_age_us * 1e-6 if sol.gnss_age_us >= 0 else None,
         }))

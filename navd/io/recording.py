@@ -219,6 +219,7 @@ class SolutionJsonlWriter:
             "lon_rad": s.lon_rad, "alt_m": s.alt_m, "vel_n": s.vel_n,
             "att_sd_rad": s.att_sd_rad, "gyro_bias_rps": s.gyro_bias_rps,
             "accel_bias_mps2": s.accel_bias_mps2, "heading_aligned": s.heading_aligned,
+            "heading_initialised": s.heading_initialised,
             "rate_b": s.rate_b, "pos_sd_m": s.pos_sd_m, "vel_sd_mps": s.vel_sd_mps,
             "gnss_age_us": s.gnss_age_us, "heading_resets": s.heading_resets}) + "\n")
 
@@ -247,5 +248,7 @@ def read_solutions_jsonl(path: str | Path) -> list[NavSolution]:
                 pos_sd_m=_t3(d.get("pos_sd_m", _NAN3)), vel_sd_mps=_t3(d.get("vel_sd_mps", _NAN3)),
                 # files written before these were recorded: the NavSolution defaults
                 gnss_age_us=int(d.get("gnss_age_us", -1)),
-                heading_resets=int(d.get("heading_resets", 0))))
+                heading_resets=int(d.get("heading_resets", 0)),
+                heading_initialised=bool(d.get("heading_initialised",
+                                               d["heading_aligned"]))))
     return out

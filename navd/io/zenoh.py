@@ -118,7 +118,7 @@ def attitude_payload(sol: NavSolution, aligned_sd_rad: float = math.inf) -> dict
     the heading a value, with the wide start-up sigma (``[init] heading_sd_deg``, 10 deg);
     ``aligned`` also needs the yaw sigma at or below ``aligned_sd_rad`` (the daemon passes
     ``[init] aligned_sd_deg``, the estimator's own "aligned by observability" bound).
-    ``heading_initialised`` keeps the estimator's flag.
+    ``heading_initialised`` says the yaw has a value at all (confirmed or not).
     """
     d = math.degrees
     return {
@@ -128,7 +128,7 @@ def attitude_payload(sol: NavSolution, aligned_sd_rad: float = math.inf) -> dict
         "euler_deg": [_num(d(sol.roll_rad)), _num(d(sol.pitch_rad)), _num(d(sol.yaw_rad))],
         "sigma_deg": [_num(d(v)) for v in sol.att_sd_rad],
         "aligned": sol.heading_good(aligned_sd_rad),
-        "heading_initialised": bool(sol.heading_aligned),
+        "heading_initialised": bool(sol.heading_initialised or sol.heading_aligned),
     }
 
 

@@ -65,7 +65,7 @@ def _finite(*xs: float) -> bool:
 
 
 def heading_level(sol: NavSolution, aligned_sd_rad: float) -> int:
-    if not sol.heading_aligned:
+    if not (sol.heading_initialised or sol.heading_aligned):
         return DIAG_ERROR
     return DIAG_OK if sol.heading_good(aligned_sd_rad) else DIAG_WARN
 
@@ -203,7 +203,8 @@ class MessageBuilder:
                  ("roll_sd_deg", f"{math.degrees(sol.att_sd_rad[0]):.3f}"),
                  ("pitch_sd_deg", f"{math.degrees(sol.att_sd_rad[1]):.3f}"),
                  ("aligned_sd_deg", f"{bound_deg:g}"),
-                 ("heading_initialised", str(bool(sol.heading_aligned)).lower()),
+                 ("heading_initialised",
+                  str(bool(sol.heading_initialised or sol.heading_aligned)).lower()),
                  ("aligned", str(level == DIAG_OK).lower()),
                  ("t_us", str(sol.t_us))]
         status = t["diagnostic_msgs/msg/DiagnosticStatus"](
