@@ -119,8 +119,8 @@ class NavSolution:
     pos_sd_m: tuple[float, float, float] = (math.nan, math.nan, math.nan)
     vel_sd_mps: tuple[float, float, float] = (math.nan, math.nan, math.nan)
     gnss_age_us: int = -1
-    heading_resets: int = 0
     heading_initialised: bool = False
+    heading_resets: int = 0
 
     def heading_good(self, max_sd_rad: float) -> bool:
         """The heading is initialised *and* its 1-sigma is within ``max_sd_rad``: what an
