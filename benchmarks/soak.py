@@ -83,6 +83,23 @@ def looped_events(run: SimRun, seconds: float) -> Iterator[tuple[int, bytes, boo
         k += 1
 
 
+def udp_drops(port: int) -> int | None:
+    """Datagrams the kernel dropped at the UDP socket bound to ``port`` on this host (the
+    ``drops`` column of /proc/net/udp and udp6: a full receive buffer), None if no such
+    socket is listed.  Tells loss before navd read the socket from loss inside navd."""
+    total: int | None = None
+    for name in ("/proc/net/udp", "/proc/net/udp6"):
+        try:
+            lines = Path(name).read_text().splitlines()[1:]
+        except OSError:
+            continue
+        for line in lines:
+            f = line.split()
+            if len(f) >= 13 and int(f[1].rsplit(":", 1)[1], 16) == port:
+                total = (total or 0) + int(f[-1])
+    return total
+
+
 def slope_kb_per_min(t_s: list[float], rss: list[int]) -> float:
     """Least-squares RSS slope over the second half of the samples, kB/min."""
     h = len(t_s) // 2
@@ -128,6 +145,7 @@ def main(argv: list[str] | None = None) -> int:
     died = False
     samples: list[dict[str, float]] = []
     sent = StreamStats()
+    kernel_drops: int | None = None
     try:
         navd.wait_ready()
         print(f"streaming {a.minutes:g} min at 1 kHz IMU + 10 Hz GNSS into navd "
@@ -162,6 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         stop.set()
         sender.join(10)
         time.sleep(1.0)  # let the last datagrams reach the queue before SIGTERM
+        kernel_drops = udp_drops(navd.port_in)
         died = died or navd.proc.poll() is not None
     finally:
         rc = navd.stop()
@@ -181,6 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         "python": platform.python_version(), "scenario": SCENARIO, "minutes": a.minutes,
         "wall_s": round(sent.wall_s, 1), "imu_sent": sent.imu, "gnss_sent": sent.gnss,
         "imu_consumed": consumed, "lost": lost, "queue_drops": drops,
+        "kernel_udp_drops": kernel_drops,
         "sender_max_late_ms": round(sent.max_late_s * 1e3, 1),
         "daemon_alive": not died, "exit_code": rc, "final_stats": stats is not None,
         "rss_start_kb": rss[0], "rss_end_kb": rss[-1], "rss_max_kb": max(rss),
@@ -194,6 +214,9 @@ def main(argv: list[str] | None = None) -> int:
         ("IMU datagrams sent / consumed / lost", f"{sent.imu} / {consumed} / {lost}"),
         ("GNSS datagrams sent", f"{sent.gnss}"),
         ("queue drops", f"{drops}"),
+        ("of the lost: dropped by the kernel (full socket buffer)",
+         "not read" if kernel_drops is None else f"{kernel_drops}"),
+        ("sender: latest behind schedule, ms", f"{sent.max_late_s * 1e3:.0f}"),
         ("RSS start / end / max, kB", f"{rss[0]} / {rss[-1]} / {max(rss)}"),
         ("RSS slope (2nd half), kB/min", f"{slope:.1f}"),
         ("CPU median / p95, % of one core", f"{pct(cpu, 50):.1f} / {pct(cpu, 95):.1f}"),

@@ -66,3 +66,36 @@ def test_one_minute_soak(tmp_path: Path) -> None:
     assert r["imu_sent"] >= 59_000 and r["lost"] == 0 and r["queue_drops"] == 0, r
     assert r["rss_max_kb"] - r["rss_start_kb"] < 64 * 1024, r
     assert "verdict:" in p.stdout and "RSS trend" in p.stdout
+
+
+def test_udp_drops_counts_what_the_kernel_dropped(soak: ModuleType) -> None:
+    """GIVEN a loopback UDP socket with a small receive buffer that nobody reads,
+    WHEN 2000 datagrams are sent to it,
+    THEN udp_drops(port) reports the kernel's drops for that port (> 0, and equal to the
+    datagrams that did not fit: sent - readable), and None for a port with no socket."""
+    import socket
+
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        rx.bind(("127.0.0.1", 0))
+        port = rx.getsockname()[1]
+        assert soak.udp_drops(port) == 0
+        for _ in range(2000):
+            tx.sendto(b"x" * 64, ("127.0.0.1", port))
+        rx.setblocking(False)
+        readable = 0
+        while True:
+            try:
+                rx.recv(128)
+            except BlockingIOError:
+                break
+            readable += 1
+        drops = soak.udp_drops(port)
+        assert drops is not None and drops > 0
+        assert drops == 2000 - readable
+    finally:
+        rx.close()
+        tx.close()
+    assert soak.udp_drops(port) is None
