@@ -29,11 +29,16 @@ class FilterSection:
     # GNSS position (velocity) updates all refused by the gate for longer than this: the
     # state, not the receiver, is wrong; reset it to GNSS (0 = never)
     max_lockout: float = _f(5.0, "s")
+    # scale the IMU white noise (ARW, VRW) online when the GNSS velocity innovations say it
+    # is understated, up to max_q_scale times its variance (navd/core/aiding/adaptive_noise.py)
+    adaptive_noise: bool = _f(True)
+    max_q_scale: float = _f(25.0)
 
     def validate(self) -> None:
         check(0.5 < self.gate_prob < 1.0, "filter", "gate_prob", "in (0.5, 1)")
         check(self.max_lockout >= 0.0, "filter", "max_lockout_s", ">= 0 (0 = never reset)")
         check(self.cov_interval > 0.0, "filter", "cov_interval_ms", "> 0")
+        check(self.max_q_scale >= 1.0, "filter", "max_q_scale", ">= 1")
 
 
 # [imu] grade presets, in the units of their TOML keys (as a user writes them).  A user who

@@ -19,6 +19,7 @@ import numpy as np
 
 from navd.config import EstimatorConfig
 from navd.core import state as st
+from navd.core.aiding.adaptive_noise import AdaptiveNoise
 from navd.core.aiding.base import INNOV_POS
 from navd.core.aiding.gnss_heading import CourseHeading
 from navd.core.aiding.gnss_recovery import LockoutRecovery
@@ -52,6 +53,7 @@ class GnssAiding:
         self._gate3 = chi2_quantile(c.filter.gate_prob, 3)
         self.course = CourseHeading(cfg)
         self.recovery = LockoutRecovery(cfg)
+        self.adaptive = AdaptiveNoise(cfg)
         self._mctls: Mctls | None = None
         if c.filter.robust == "mctls":
             from navd.core.aiding.mctls import Mctls as _Mctls
@@ -74,6 +76,7 @@ class GnssAiding:
         self.last_speed_h = math.inf
         self.course.reset()
         self.recovery.reset()
+        self.adaptive.reset()
         if self._mctls is not None:
             self._mctls.reset()
 
@@ -91,6 +94,10 @@ class GnssAiding:
             # how long position / velocity updates have been refused (s; reset to GNSS
             # beyond [filter] max_lockout_s)
             "gnss_refused_s": [round(x, 2) for x in self.recovery.refused_s(est.t_us)],
+            # variance scale of the IMU white noise, adapted from the velocity innovations
+            "q_scale": self.adaptive.scale,
+            # ... and of the GNSS velocity accuracy
+            "r_scale": self.adaptive.r_scale,
         }
 
     def fuse(self, est: Estimator, g: GnssSample) -> bool:
@@ -103,7 +110,8 @@ class GnssAiding:
                 else _DEFAULT_VEL_ACC)
         h_sd = max(h_sd, c.gnss.min_pos_sd)
         v_sd = max(v_sd, c.gnss.min_pos_sd)
-        s_sd = max(s_sd, c.gnss.min_vel_sd)
+        # a receiver that understates its velocity noise: scaled from the innovations
+        s_sd = max(s_sd, c.gnss.min_vel_sd) * self.adaptive.r_sd_factor
 
         # absurd jumps are refused even with gating off: they are not measurements of us
         pos = est.pos
@@ -150,6 +158,7 @@ class GnssAiding:
         d_yaw = math.atan2(m_nb[1, 0], m_nb[0, 0]) - yaw0
         self.course.align.note_yaw_moved((d_yaw + math.pi) % (2.0 * math.pi) - math.pi)
         self.recovery.after_epoch(est, g.t_us, h_sd, v_sd, s_sd, math.isfinite(g.vel_d))
+        self.adaptive.after_epoch(est, math.isfinite(g.vel_d))
         return True
 
     def _heading_hold(self, est: Estimator, g: GnssSample) -> bool:

@@ -1,0 +1,194 @@
+"""Process and GNSS velocity noise adapted online from the velocity innovations (docs/design.md
+§3.3).
+
+Why.  A user who states the IMU's noise too low (or whose vehicle vibrates more than the
+datasheet) gets a filter that trusts its own propagation too much: the velocity
+innovations outgrow their predicted covariance, the gate refuses honest fixes, and the
+lock-out recovery has to reset the state again and again (issue 14: 3x the configured ARW
+and VRW gave 4 deg of tilt with 61 resets).  The innovations themselves say so.
+
+Test.  For a consistent filter the velocity NIS of an epoch is chi-square with m degrees
+of freedom (m = 3, 2 without a reported vertical velocity, +1 when the course row joined),
+so it exceeds the chi-square median with probability 1/2.  Over ``_WINDOW`` epochs that
+tried the velocity update (accepted or refused; the refused count as high), the number k
+above the median is Binomial(N, 1/2) for a consistent filter: a sign test, which does not
+care how heavy the tail of the innovations is (one wild fix counts once, unlike a mean of
+NIS).  z = (k - N/2) / (sqrt(N)/2): above ``_Z_UP`` the white-noise densities (ARW, VRW) are
+scaled up by the window's median NIS ratio (NIS over the chi-square median; between
+``_STEP`` and ``_MAX_STEP``); below ``_Z_DOWN`` they come back down by ``_STEP``, never below
+the configured values and never above ``[filter] max_q_scale`` times them (variance scale;
+25 = 5x sigma).
+
+Which noise.  Too large an innovation has two causes with opposite signatures (Mehra's
+classic argument): a filter that trusts its propagation too much (IMU noise understated)
+under-corrects, so its innovations stay correlated from one epoch to the next; one that
+trusts the fixes too much (a receiver that understates its velocity noise) chases their
+noise and over-corrects, so consecutive innovations anti-correlate.  The window's lag-1
+correlation of the horizontal velocity innovations, rho = sum z_k z_k-1 / sum z_k^2, picks
+the one to scale up: rho > 0 the IMU white noise (Q), else the reported GNSS velocity
+variance (R, applied to the following epochs' velocity sigma).  Measured on car480 with the
+adaptation off: 3x IMU noise rho = +0.14 (window 10-90 %: +0.03..+0.28), 3x GNSS velocity
+noise rho = -0.18 (-0.29..-0.05), clean -0.02 (-0.17..+0.14).  Too small an innovation
+brings down the one that over-corrects (rho < 0: Q), else R, never below 1.
+
+Not fighting the bias estimation.  An uncalibrated gyro also makes velocity innovations
+large, and inflating the white noise then only widens every sigma while the bias stays
+wrong (an earlier version of this took an uncalibrated-gyro car from 11.6 to 83.6 deg of
+tilt).  So a window counts only while the bias estimates have settled: every gyro-bias
+sigma below ``_SETTLED`` times its prior and every accelerometer-bias sigma too, and both
+estimates within the physical limits of :mod:`navd.core.aiding.gnss_recovery`.  Until then
+the bias states, not the noise, are what must move.
+
+Counted ``q_scale_up`` / ``q_scale_down`` / ``r_scale_up`` / ``r_scale_down``; the status
+record shows both scales.  A restart keeps them (it changes neither sensor).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from navd.config import EstimatorConfig
+from navd.core import state as st
+from navd.core.aiding.base import (
+    ACCEPTED,
+    INNOV_COURSE,
+    INNOV_FLAG,
+    INNOV_NIS,
+    INNOV_VEL,
+    REJECTED,
+)
+from navd.core.aiding.gnss_recovery import ACCEL_BIAS_LIMIT, GYRO_BIAS_LIMIT
+from navd.core.chi2 import chi2_quantile
+
+if TYPE_CHECKING:
+    from navd.core.estimator import Estimator
+
+_WINDOW = 50  # velocity epochs per sign test (5 s at 10 Hz)
+_Z_UP = 2.5  # sign-test z above which the noise is scaled up
+_Z_DOWN = -2.0  # ... below which it comes back down
+_STEP = math.sqrt(2.0)  # variance factor per decision (down; the least up)
+_MAX_STEP = 4.0  # the most up per decision
+_SETTLED = 0.8  # bias sigma / prior sigma below which the biases count as settled
+
+# state array: high count, epochs counted, Q scale, R scale, sums for the lag-1 correlation
+# of the horizontal velocity innovations (sum z_k z_k-1, sum z_k^2), the previous z (N, E)
+_HIGH, _N, _SCALE, _RSCALE, _SZZ, _SZ2, _PN, _PE = range(8)
+
+
+class AdaptiveNoise:
+    """Sign test on the velocity NIS and the scale of the IMU white-noise densities."""
+
+    def __init__(self, cfg: EstimatorConfig) -> None:
+        self.cfg = cfg
+        self.enabled = cfg.filter.adaptive_noise and cfg.filter.max_q_scale > 1.0
+        self.max_scale = cfg.filter.max_q_scale
+        # chi-square medians for m = 1..4 degrees of freedom
+        self._median = np.array([0.0] + [chi2_quantile(0.5, m) for m in range(1, 5)])
+        self._s = np.zeros(8)
+        self._s[_SCALE] = 1.0
+        self._s[_RSCALE] = 1.0
+        self._s[_PN] = math.nan
+        # this window's NIS over its chi-square median (refused epochs: inf)
+        self._ratio = np.zeros(_WINDOW)
+        imu = cfg.imu
+        self._q_white = (imu.gyro_arw ** 2, imu.accel_vrw ** 2)
+        self._gyro_sd2 = imu.gyro_bias_sd ** 2
+        self._accel_sd2 = imu.accel_bias_sd ** 2
+
+    @property
+    def scale(self) -> float:
+        """Present variance scale of the IMU white noise (1 = as configured)."""
+        return float(self._s[_SCALE])
+
+    @property
+    def r_scale(self) -> float:
+        """Present variance scale of the GNSS velocity accuracy (1 = as reported)."""
+        return float(self._s[_RSCALE])
+
+    @property
+    def r_sd_factor(self) -> float:
+        """Factor on the GNSS velocity sigma (sqrt of :attr:`r_scale`)."""
+        return math.sqrt(float(self._s[_RSCALE]))
+
+    def reset(self) -> None:
+        """Start the window over; the scales are kept (a restart changes neither sensor)."""
+        self._clear()
+
+    def _clear(self) -> None:
+        s = self._s
+        s[_HIGH] = s[_N] = s[_SZZ] = s[_SZ2] = 0.0
+        s[_PN] = math.nan
+
+    def _settled(self, est: Estimator) -> bool:
+        P = est.P
+        s = _SETTLED * _SETTLED
+        for k in range(3):
+            if (P[9 + k, 9 + k] > s * self._gyro_sd2 or P[12 + k, 12 + k] > s * self._accel_sd2
+                    or abs(est.bias_g[k]) > GYRO_BIAS_LIMIT
+                    or abs(est.bias_a[k]) > ACCEL_BIAS_LIMIT):
+                return False
+        return True
+
+    def after_epoch(self, est: Estimator, vel_d_reported: bool) -> None:
+        """Call once per GNSS epoch after its updates."""
+        if not self.enabled:
+            return
+        r = est.innov
+        flag = r[INNOV_VEL, INNOV_FLAG]
+        nis = r[INNOV_VEL, INNOV_NIS]
+        if (flag != ACCEPTED and flag != REJECTED) or not math.isfinite(nis):
+            return
+        if not self._settled(est):
+            self._clear()
+            return
+        m = (3 if vel_d_reported else 2) + (1 if r[INNOV_COURSE, INNOV_FLAG] == ACCEPTED
+                                            and flag == ACCEPTED else 0)
+        s = self._s
+        ratio = math.inf if flag == REJECTED else nis / self._median[m]
+        if ratio > 1.0:
+            s[_HIGH] += 1.0
+        self._ratio[int(s[_N])] = ratio
+        s[_N] += 1.0
+        zn, ze = r[INNOV_VEL, 0], r[INNOV_VEL, 1]
+        if math.isfinite(zn) and math.isfinite(ze):
+            if math.isfinite(s[_PN]):
+                s[_SZZ] += zn * s[_PN] + ze * s[_PE]
+            s[_SZ2] += zn * zn + ze * ze
+            s[_PN] = zn
+            s[_PE] = ze
+        if s[_N] < _WINDOW:
+            return
+        z = (s[_HIGH] - 0.5 * s[_N]) / (0.5 * math.sqrt(s[_N]))
+        rho = s[_SZZ] / s[_SZ2] if s[_SZ2] > 0.0 else 0.0
+        self._clear()
+        if z > _Z_UP:
+            # the median NIS ratio says how far off the innovation covariance is: step by
+            # it (at least _STEP, at most _MAX_STEP) so a 9x understated noise is found in
+            # a few windows, not a dozen
+            step = min(max(float(np.median(self._ratio)), _STEP), _MAX_STEP)
+            # which one: a filter that trusts its propagation too much under-corrects, so
+            # its innovations stay correlated from epoch to epoch (rho > 0); one that trusts
+            # noisy fixes too much chases their noise and over-corrects (rho < 0)
+            k = _SCALE if rho > 0.0 else _RSCALE
+            if s[k] < self.max_scale:
+                s[k] = min(s[k] * step, self.max_scale)
+                est.counters["q_scale_up" if k == _SCALE else "r_scale_up"] += 1
+                self._apply(est)
+        elif z < _Z_DOWN:
+            # too small an innovation: the one that over-corrects (rho < 0) is too large
+            k = _SCALE if rho < 0.0 else _RSCALE
+            if s[k] <= 1.0:
+                k = _RSCALE if k == _SCALE else _SCALE
+            if s[k] > 1.0:
+                s[k] = max(s[k] / _STEP, 1.0)
+                est.counters["q_scale_down" if k == _SCALE else "r_scale_down"] += 1
+                self._apply(est)
+
+    def _apply(self, est: Estimator) -> None:
+        q = est.buf[st.Q:st.Q + 15]  # the continuous noise densities the propagation uses
+        sc = self._s[_SCALE]
+        q[0] = q[1] = q[2] = sc * self._q_white[0]
+        q[3] = q[4] = q[5] = sc * self._q_white[1]
