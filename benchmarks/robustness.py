@@ -29,7 +29,8 @@ Per case (pooled over seeds; instants every 0.1 s of sensor time after navigatio
 
 Real logs (``../shared/data`` beside the checkout, or ``$NAVD_DATA``): roll/pitch RMS
 against the log's onboard attitude (ATT, magnetometer-aided: an estimate, not truth) over
-the in-flight instants, % of instants with
+the in-flight instants (from take-off to a crash, if any: :func:`crash_s`; lock-outs and
+resets still count over the whole log), % of instants with
 |navd - ATT| > 3 navd-sigma, lock-outs and resets as above.  A log that cannot be read, or
 gives no navigation solution, prints its reason instead of numbers.
 
@@ -405,10 +406,28 @@ REAL_LOGS: tuple[RealLog, ...] = (
     RealLog("quad123", DATA / "inertialnav-quads/quad123.zip", "multirotor", 0.0,
             "from take-off: first 1 s with gyro-rate spread > 2 deg/s"),
     RealLog("log171", DATA / "arducopter-log171/log171.bin", "multirotor", 0.0,
-            "from take-off: first 1 s with gyro-rate spread > 2 deg/s"),
+            "from take-off: first 1 s with gyro-rate spread > 2 deg/s, to the crash: first "
+            "body rate > 1000 deg/s"),
 )
 
 TAKEOFF_RATE_SPREAD_DPS = 2.0
+# a body rate no vehicle flies at, but a tumbling crash reaches (a consumer gyro's range is
+# 2000 deg/s; the real logs fly below 200 deg/s, log171 hits 2042 deg/s in its crash)
+CRASH_RATE_DPS = 1000.0
+
+
+def crash_s(t_us: npt.NDArray[np.int64], rates_rps: Arr) -> float:
+    """Time (s from ``t_us[0]``) of the first sample whose body rate exceeds CRASH_RATE_DPS,
+    NaN if none: flight ends there (what follows is a tumble and a vehicle on the ground,
+    not flight; log171 ends upside down).
+
+    Args:
+        t_us: (N,) sample times, us.
+        rates_rps: (N, 3) angular rates, rad/s.
+    """
+    hit = np.nonzero(np.sqrt(np.sum(rates_rps * rates_rps, axis=1)) * RAD2DEG
+                     > CRASH_RATE_DPS)[0]
+    return float((t_us[hit[0]] - t_us[0]) * 1e-6) if hit.size else math.nan
 
 
 def takeoff_s(t_us: npt.NDArray[np.int64], rates_rps: Arr) -> float:
@@ -496,8 +515,11 @@ def score_log(spec: RealLog, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
     start = (spec.flight_from_s if spec.flight_from_s > 0.0
              else takeoff_s(data.imu_t_us[1:], rates) + (data.imu_t_us[1] - t0) * 1e-6)
     rec["flight_from_s"] = start
+    end = crash_s(data.imu_t_us[1:], rates) + (data.imu_t_us[1] - t0) * 1e-6
+    rec["flight_to_s"] = end  # NaN: no crash, in flight to the end of the log
     err, near = reference_errors(t_us, a[:, 1:3], (ref.t_us, ref.roll_rad, ref.pitch_rad))
-    fly = near & ((t_us - t0) * 1e-6 >= start)
+    t_s = (t_us - t0) * 1e-6
+    fly = near & (t_s >= start) & ~(t_s >= end)
     e = err[fly] * RAD2DEG
     sd = a[fly, 3:5] * RAD2DEG
     exceed = np.abs(e) > 3.0 * sd

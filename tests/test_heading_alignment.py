@@ -29,15 +29,18 @@ def _slow_noisy(seed: int) -> Any:
 
 def test_low_speed_noisy_accelerometer_never_flags_a_wrong_heading() -> None:
     """GIVEN the issue's false-alignment setting (2-3.4 m/s, noisy accelerometers), seeds 4
-    and 9, where the heading was flagged aligned > 90 deg wrong for 19-25 s before,
+    and 9, where the heading was flagged aligned > 90 deg wrong for 19-25 s before, and
+    seed 10 (its yaw goes > 100 deg wrong),
     WHEN run with the default config,
-    THEN the yaw does go more than 40 deg wrong at times (the case is hard) but no aligned
-    instant is more than 90 deg off, and the yaw is reset to the course when the checks
-    disagree."""
-    for seed in (4, 9):
+    THEN the yaw does go more than 40 deg wrong at times (the case is hard: seeds 4 and 10;
+    seed 9 stays within 35 deg since the lock-out resets come one fix interval earlier,
+    where it went 57 deg wrong before) but no aligned instant is more than 90 deg off, and
+    the yaw is reset to the course when the checks disagree."""
+    for seed in (4, 9, 10):
         r = _slow_noisy(seed)
         err = np.abs(r.err_deg[:, 2])
-        assert err.max() > 40.0
+        if seed != 9:
+            assert err.max() > 40.0
         assert r.aligned.any()
         assert err[r.aligned].max() < 90.0, seed
         assert r.counters.get("heading_reset_inconsistent", 0) >= 1

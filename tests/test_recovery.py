@@ -17,6 +17,7 @@ from navd.pipeline import build_estimator
 from navd.types import GnssSample, ImuSample
 
 R_EARTH = 6.371e6
+KNOCK_DEG = 150.0  # attitude knocked this far in roll (deg): a crash, then at rest
 
 
 @pytest.fixture(scope="module")
@@ -39,17 +40,22 @@ def _longest_refusal_s(flags: list[tuple[int, float]]) -> float:
 
 
 def _drive(est: Estimator, run: SimRun, shift_after_us: int = -1, shift_m: float = 0.0,
-           kick_at_us: int = -1, kick_vel_e: float = 0.0
+           kick_at_us: int = -1, kick_vel_e: float = 0.0, keep: tuple[int, ...] = ()
            ) -> tuple[list[tuple[int, float]], list[tuple[int, float]]]:
     """Push the run; fixes valid from ``shift_after_us`` on are moved ``shift_m`` north; at
     ``kick_at_us`` the estimator's east velocity is corrupted by ``kick_vel_e`` (covariance
-    left as it was: a state the filter wrongly trusts).  Returns (t, flag) per epoch for
+    left as it was: a state the filter wrongly trusts); ``keep``: if given, only fixes whose
+    index modulo 7 is in it are pushed (uneven intervals).  Returns (t, flag) per epoch for
     position and velocity."""
     pos_flags: list[tuple[int, float]] = []
     vel_flags: list[tuple[int, float]] = []
     kicked = False
+    n_fix = -1
     for s in run.samples():
         if isinstance(s, GnssSample):
+            n_fix += 1
+            if keep and n_fix % 7 not in keep:
+                continue
             if 0 <= shift_after_us <= s.t_us:
                 s = dataclasses.replace(s, lat_rad=s.lat_rad + shift_m / R_EARTH,
                                         pos_ecef_m=None)
@@ -144,3 +150,66 @@ def test_one_outlier_after_an_outage_is_not_a_lockout(run: SimRun) -> None:
     assert dict(pos_flags)[first_after] == REJECTED
     assert est.counters["reset_lockout_pos"] == 0
     assert [f for t, f in pos_flags if t > first_after][:5] == [ACCEPTED] * 5
+
+
+def test_uneven_fix_intervals_still_end_the_lockout_within_max_lockout(run: SimRun) -> None:
+    """GIVEN the default config and fixes that arrive unevenly (every 0.2, 0.2, 0.3 s: the
+    10 Hz run with some epochs dropped, like f450_glitch's 0.18-0.25 s),
+    WHEN from t = 40 s on every fix is 500 m further north,
+    THEN the reset comes early enough that no more than max_lockout_s (5 s) pass from the
+    first refused fix to the next accepted one (allowing one nominal interval for the next
+    fix gave 5.2 s on f450_glitch)."""
+    est = build_estimator(load_config(None, []))
+    pos, _ = _drive(est, run, shift_after_us=40_000_000, shift_m=500.0, keep=(0, 2, 4))
+    assert est.counters["reset_lockout_pos"] == 1
+    assert 4.0 <= _longest_refusal_s(pos) <= 5.0
+
+
+def _tilted_at_rest(relevel: bool, monkeypatch: pytest.MonkeyPatch) -> tuple[Estimator, list[
+        tuple[int, float]], float]:
+    """A level vehicle at rest (10 Hz fixes) whose attitude is knocked KNOCK_DEG in roll at
+    t = 30 s, covariance untouched (a gyro saturated in a crash).  Returns the estimator,
+    the velocity outcomes and the final roll error in units of the filter's roll sigma."""
+    from navd.core.aiding import gnss_recovery
+    if not relevel:
+        monkeypatch.setattr(gnss_recovery, "_relevel_at_rest", lambda est: None)
+    sc = load_scenario("static", {"duration_s": 60.0, "gnss.rate_hz": 10.0})
+    r = generate(sc, seed=1, progress=False)
+    est = build_estimator(load_config(None, []))
+    vel: list[tuple[int, float]] = []
+    knocked = False
+    for s in r.samples():
+        est.push(s)
+        if isinstance(s, GnssSample) and est.initialized:
+            vel.append((s.t_us, float(est.innov[INNOV_VEL, INNOV_FLAG])))
+        if isinstance(s, ImuSample) and not knocked and s.t_us >= 30_000_000:
+            c, sn = math.cos(math.radians(KNOCK_DEG)), math.sin(math.radians(KNOCK_DEG))
+            est.mat_nb[:, :] = est.mat_nb @ np.array([[1.0, 0.0, 0.0], [0.0, c, -sn],
+                                                      [0.0, sn, c]])
+            knocked = True
+    k = len(r.truth_t_us) - 1
+    roll = math.atan2(est.mat_nb[2, 1], est.mat_nb[2, 2])
+    return est, vel, math.degrees(roll - r.truth_euler[k, 0]) / math.degrees(
+        est.solution().att_sd_rad[0])
+
+
+def test_a_tilt_knocked_far_off_at_rest_is_relevelled_at_the_velocity_reset(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """GIVEN the default config, a vehicle at rest, its attitude knocked 150 deg in roll with
+    the covariance left small (log171's crash: the gyro saturated, then upside down at rest),
+    WHEN the velocity fixes are refused for max_lockout_s,
+    THEN the reset re-levels roll and pitch from the accelerometer (counted), the velocity is
+    refused for at most 5 s and accepted at the end, and roll ends within 3 sigma of the
+    truth; the control without the re-level still has its velocity refused at the end or
+    roll beyond 10 sigma (widening the tilt variance alone cannot undo 150 deg: it was refused
+    for the last 30 s through six resets, roll 25 sigma off; from 60 deg it did recover)."""
+    est, vel, roll_err = _tilted_at_rest(True, monkeypatch)
+    assert est.counters["reset_level_at_rest"] >= 1
+    assert _longest_refusal_s(vel) <= 5.0
+    assert vel[-1][1] == ACCEPTED
+    assert abs(roll_err) < 3.0
+    assert np.all(np.isfinite(est.P)) and np.all(np.linalg.eigvalsh(est.P) > -1e-12)
+    monkeypatch.undo()
+    ctl, ctl_vel, ctl_roll = _tilted_at_rest(False, monkeypatch)
+    assert ctl.counters["reset_level_at_rest"] == 0
+    assert ctl_vel[-1][1] != ACCEPTED or abs(ctl_roll) > 10.0

@@ -1,9 +1,12 @@
 """Recovery from a GNSS lock-out: when the gate has refused every position (or velocity)
 update for longer than ``[filter] max_lockout_s``, the state is reset to GNSS.
 
-A lock-out is timed from the first refused epoch of a run of refusals; the reset comes at
-the last epoch before it would outlast ``max_lockout`` (the next epoch is expected one
-interval later), so no lock-out lasts longer than that.
+A lock-out is timed from the first refused epoch of a run of refusals and ends at the next
+accepted one.  A reset at epoch k lets the fix of epoch k+1 in, so the reset comes at the
+last epoch k after which waiting for k+1 could end the lock-out beyond ``max_lockout``
+(k+1 and k+2 each up to ``_JITTER`` intervals later), so no lock-out lasts longer than that
+(f450_glitch's 5 Hz fixes arrive 0.18-0.25 s apart: allowing one interval only, a reset
+decided at 4.79 s was followed by a fix 0.22 s later, a 5.01-5.2 s lock-out).
 
 Why.  A chi-square gate trusts the filter's covariance.  When the state has drifted beyond
 what the covariance admits (a mis-stated IMU noise spec, an uncalibrated gyro, a vehicle
@@ -21,7 +24,17 @@ position  refused for longer than ``max_lockout``: the position moves by minus t
 velocity  likewise onto the GNSS velocity (horizontal; vertical when the receiver gives
           it).  A velocity the filter could not follow means the attitude or the biases
           that drove it are wrong too: the tilt, heading and bias variances grow by their
-          initial (prior) variances, so the next fixes can correct them.
+          initial (prior) variances, so the next fixes can correct them.  When the vehicle
+          is at rest (GNSS speed below ``_REST_SPEED``, and the last 1 s IMU window of
+          :mod:`navd.core.aiding.gyro_rest` ended within 1.5 s, turned slower than ``[init]
+          static_rate_tol`` and measured gravity within ``_LEVEL_F_TOL``), that window's
+          mean specific force is gravity alone and gives roll and pitch directly: they are
+          re-levelled from it (yaw kept) with the levelling sigma ``[init] tilt_sd``
+          (``reset_level_at_rest``).  A tilt tens of degrees off (a gyro saturated in a crash,
+          log171 at 227.5 s: 2000 deg/s, 11 g, then upside down on the ground) is far outside
+          what widened variances let a linear update correct: without it the velocity was
+          refused for the remaining 15 s of the log despite two resets, each followed within
+          a second by horizontal accelerations of g sin(70 deg).
 
 bias limits  a gyro bias estimate beyond ``GYRO_BIAS_LIMIT`` (10 deg/s) or an accelerometer
           bias beyond ``ACCEL_BIAS_LIMIT`` (1.5 m/s^2, ~150 mg) on any axis is no sensor's
@@ -46,7 +59,8 @@ from typing import TYPE_CHECKING
 from navd.config import EstimatorConfig
 from navd.core import state as st
 from navd.core.aiding.base import ACCEPTED, INNOV_FLAG, INNOV_POS, INNOV_VEL, NOT_TRIED
-from navd.core.earth import radii
+from navd.core.earth import gravity, radii
+from navd.core.rotation import euler_to_mat_into
 
 if TYPE_CHECKING:
     from navd.core.estimator import Estimator
@@ -57,6 +71,11 @@ _BG = 9  # error-state index of the gyro bias (then the accelerometer bias at 12
 
 GYRO_BIAS_LIMIT = 10.0 * math.pi / 180.0  # rad/s: beyond any MEMS gyro's offset
 ACCEL_BIAS_LIMIT = 1.5  # m/s^2: beyond any MEMS accelerometer's offset
+_JITTER = 1.25  # a fix may arrive this many nominal intervals after the previous one
+_REST_SPEED = 0.5  # m/s: GNSS horizontal speed below which a velocity reset may re-level
+_LEVEL_F_TOL = 1.0  # m/s^2: |mean specific force| - g within this to re-level (~100 mg)
+_LEVEL_WINDOW_AGE_US = 1_500_000  # the IMU window re-levelled from ended at most this long ago
+_RELEVEL_HEADING_DEG = 10.0  # a re-level that moves the tilt further leaves heading unknown
 
 
 class LockoutRecovery:
@@ -121,7 +140,7 @@ class LockoutRecovery:
             # one refused fix is an outlier until the next one agrees with it, however far
             # apart the fixes are
             return t_us
-        if self._max_us > 0.0 and t_us - refused_us + step >= self._max_us:
+        if self._max_us > 0.0 and t_us - refused_us + 2.0 * _JITTER * step >= self._max_us:
             return -2
         return refused_us
 
@@ -165,8 +184,44 @@ class LockoutRecovery:
             P[k, k] = s_sd * s_sd
         # what drove the velocity away is in doubt as much as at the start
         _widen_attitude_and_biases(est)
+        if est.gnss.last_speed_h < _REST_SPEED:
+            _relevel_at_rest(est)
         st.history_reset(est.buf)
         est.counters["reset_lockout_vel"] += 1
+
+
+def _relevel_at_rest(est: Estimator) -> None:
+    """Roll and pitch from the last still IMU window's mean specific force (module doc)."""
+    w = est.gyro_rest.last_window  # mean rate (3), mean specific force (3), end time (us)
+    if w[6] < 0.0 or est.t_us - w[6] > _LEVEL_WINDOW_AGE_US:
+        return
+    c = est.cfg
+    if math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]) > c.init.static_rate_tol:
+        return
+    ba = est.bias_a
+    fx, fy, fz = w[3] - ba[0], w[4] - ba[1], w[5] - ba[2]
+    g = gravity(float(est.pos[0]), float(est.pos[2]))
+    if abs(math.sqrt(fx * fx + fy * fy + fz * fz) - g) > _LEVEL_F_TOL:
+        return
+    C = est.mat_nb
+    yaw = math.atan2(float(C[1, 0]), float(C[0, 0]))
+    # the body's down axis in n before the re-level, to tell how far the tilt moved
+    d0 = (float(C[2, 0]), float(C[2, 1]), float(C[2, 2]))
+    euler_to_mat_into(C, math.atan2(-fy, -fz), math.atan2(fx, math.sqrt(fy * fy + fz * fz)),
+                      yaw)
+    moved = math.acos(max(-1.0, min(1.0, d0[0] * float(C[2, 0]) + d0[1] * float(C[2, 1])
+                                    + d0[2] * float(C[2, 2]))))
+    P = est.P
+    for k in range(2):
+        P[k, :] = 0.0
+        P[:, k] = 0.0
+        P[k, k] = c.init.tilt_sd ** 2
+    if moved > _RELEVEL_HEADING_DEG * math.pi / 180.0:
+        # a tilt that far off came with a yaw nobody can vouch for
+        P[2, :] = 0.0
+        P[:, 2] = 0.0
+        P[2, 2] = (math.pi / 2.0) ** 2
+    est.counters["reset_level_at_rest"] += 1
 
 
 def _widen_attitude_and_biases(est: Estimator) -> None:

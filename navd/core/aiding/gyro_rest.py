@@ -241,12 +241,18 @@ class GyroRest:
         self._agree_gate = chi2_quantile(_STILL_PROB, 3 * (_RESET_AFTER - 1))
         self.updates = 0
         self.still = False
+        # the last closed window: mean raw rate (3, rad/s, body FRD), mean raw specific force
+        # (3, m/s^2, body FRD), its end time (us; -1: none yet).  The lock-out recovery
+        # re-levels from it (navd/core/aiding/gnss_recovery.py).
+        self.last_window = np.zeros(7)
+        self.last_window[6] = -1.0
 
     def reset(self) -> None:
         self.acc[:] = 0.0
         self._n[0] = 0.0
         self._n_rej = 0
         self.still = False
+        self.last_window[6] = -1.0
 
     @property
     def windows(self) -> int:
@@ -256,6 +262,11 @@ class GyroRest:
     def window_done(self, est: Estimator) -> None:
         """The present window is complete (:func:`rest_push` returned True)."""
         g = gravity(float(est.pos[0]), float(est.pos[2])) if est.initialized else 9.80665
+        a, lw = self.acc, self.last_window
+        if a[12] >= 2.0:
+            for i in range(6):
+                lw[i] = a[i] / a[12]
+            lw[6] = float(est.t_us)
         res = close_window(self.acc, self._win, self._n, self.cfg.init.static_rate_tol,
                            _F_TOL, g, self._still_gates, self._trend_gate, _MIN_WINDOWS)
         self.still = res == 1
