@@ -7,6 +7,7 @@ rows.  The fixture writes that generation's exact formats (from log171's FMT mes
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -238,3 +239,34 @@ def test_dataflash_old_imu2_is_instance_1(src: Source, tmp_path: Path) -> None:
     np.testing.assert_allclose(d.imu_inc[:, :3] / (d.imu_dt_us[:, None] * 1e-6), 9.0,
                                rtol=1e-6)
     np.testing.assert_allclose(d.imu_inc[:, 3:], 0.0)
+
+
+def test_dataflash_reference_is_turned_onto_the_imu_axes_by_ahrs_trim(
+        src: Source, tmp_path: Path) -> None:
+    """GIVEN an ArduCopter 3.3 log whose ATT is the vehicle body's attitude under a level
+    trim AHRS_TRIM_X/Y of 1.18/0.30 deg (log171's: ATT sat 1.18/0.37 deg below the
+    accelerometer's own level at rest), logged as PARM,
+    WHEN it is read,
+    THEN the reference is the IMU axes' attitude (the simulated truth) to the log's 0.01 deg
+    resolution, a note names the trim, and without the PARM messages the reference is ATT as
+    logged (1.18 deg of roll away from the truth where level)."""
+    trim = (math.radians(1.18), math.radians(0.30))
+    p = tmp_path / "trim.bin"
+    write_dataflash_ac33(p, src, trim_rad=trim)
+    d = read_log(p)
+    ref = d.reference
+    k = np.searchsorted(src.ref_t_us, ref.t_us)
+    assert np.all(src.ref_t_us[k] == ref.t_us)
+    err = np.degrees(np.stack([ref.roll_rad - src.ref_euler[k, 0],
+                               ref.pitch_rad - src.ref_euler[k, 1],
+                               (ref.yaw_rad - src.ref_euler[k, 2] + np.pi) % (2 * np.pi)
+                               - np.pi]))
+    assert np.max(np.abs(err)) < 0.02, np.max(np.abs(err), axis=1)
+    assert any("AHRS_TRIM" in n for n in d.notes), d.notes
+    # the control: the same ATT without the PARM messages is read as logged
+    plain = tmp_path / "plain.bin"
+    write_dataflash_ac33(plain, src, trim_rad=trim, log_trim=False)
+    q = read_log(plain)
+    roll_off = np.degrees(q.reference.roll_rad - src.ref_euler[k, 0])
+    assert abs(float(np.median(roll_off)) + 1.18) < 0.05
+    assert not any("AHRS_TRIM" in n for n in q.notes)

@@ -26,7 +26,12 @@ Messages (pymavlink applies the format multipliers, so values are in the units b
           (have vertical velocity); matched to GPS by TimeUS and instance.  Height above the
           ellipsoid = Alt + Und if Und is logged, else Alt + geoid_sep.
     ATT   Roll, Pitch, Yaw (deg; yaw 0..360) of the onboard AHRS/EKF as the reference
-          (AHRS2, named AHR2 in the log, if there is no ATT).
+          (AHRS2, named AHR2 in the log, if there is no ATT).  ArduPilot reports the
+          attitude of the *vehicle* body, which is the autopilot's (IMU) body turned by
+          the level trim ``AHRS_TRIM_X/Y`` (rad): C_n,imu = C_n,vehicle R(trim_x, trim_y, 0).
+          navd estimates the IMU axes, so the reference is turned back onto them when the
+          log's PARM messages give a trim (log171: 1.18 deg of roll, 0.30 deg of pitch, the
+          offset between ATT and the accelerometer's own level at rest).
 
 Damage: messages are read in sequence and the offset of each is checked; the first skipped
 bytes (no 0xA3 0x95 header where a message should start, or an unknown type) or a message cut
@@ -47,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from navd.core.rotation import euler_to_mat, mat_to_euler
 from navd.io.logs.common import (
     LogDamage,
     LogData,
@@ -167,6 +173,17 @@ def _summarise(output: str) -> str:
     return "; ".join(parts + rest)[:500]
 
 
+def _to_imu_axes(ref: Reference, trim_x: float, trim_y: float) -> None:
+    """Turn the vehicle-body attitudes of ``ref`` (ZYX Euler, rad, in place) onto the IMU
+    axes: C_n,imu = C_n,vehicle R_trim, R_trim = Rz(0) Ry(trim_y) Rx(trim_x) (ArduPilot's
+    AP_AHRS: the vehicle body is the autopilot body rotated by R_trim^T)."""
+    r_trim = euler_to_mat(trim_x, trim_y, 0.0)
+    for k in range(len(ref.t_us)):
+        c = euler_to_mat(float(ref.roll_rad[k]), float(ref.pitch_rad[k]),
+                         float(ref.yaw_rad[k])) @ r_trim
+        ref.roll_rad[k], ref.pitch_rad[k], ref.yaw_rad[k] = mat_to_euler(c)
+
+
 def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogData:
     from pymavlink import DFReader
 
@@ -196,6 +213,7 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
     damage: LogDamage | None = None
     boot_us: int | None = None  # boot time of the last IMU message read (any instance)
     firmware = ""  # the MSG naming the vehicle firmware ("APM:Copter V3.3-dev", "ArduPlane")
+    trim = [0.0, 0.0]  # AHRS_TRIM_X, AHRS_TRIM_Y (rad): the vehicle body against the IMU's
     data_len = int(r.data_len)
     try:
         with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
@@ -261,6 +279,11 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
                     t = _time_us(m)
                     if t is not None:
                         att.append((t, float(m.Roll), float(m.Pitch), float(m.Yaw)))
+                elif name == "PARM" and str(getattr(m, "Name", "")) in ("AHRS_TRIM_X",
+                                                                        "AHRS_TRIM_Y"):
+                    val = float(m.Value)
+                    if math.isfinite(val) and abs(val) < 0.2:  # AHRS_TRIM: at most 10 deg
+                        trim[0 if str(m.Name).endswith("X") else 1] = val
                 elif name == "MSG" and not firmware:
                     text = str(getattr(m, "Message", ""))
                     if any(v in text for v in _VEHICLES):
@@ -320,6 +343,10 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
         a_arr = np.asarray(rows, dtype=np.float64)
         ref = Reference(np.asarray([x[0] for x in rows], dtype=np.int64), a_arr[:, 1] * DEG,
                         a_arr[:, 2] * DEG, a_arr[:, 3] * DEG, src)
+        if trim[0] != 0.0 or trim[1] != 0.0:
+            _to_imu_axes(ref, trim[0], trim[1])
+            notes.append(f"{src} turned onto the IMU axes by AHRS_TRIM_X/Y "
+                         f"({trim[0] / DEG:.2f}, {trim[1] / DEG:.2f} deg)")
         # yaw 0..360 -> (-180, 180]
         ref.yaw_rad = (ref.yaw_rad + math.pi) % (2.0 * math.pi) - math.pi
     else:
