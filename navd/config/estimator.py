@@ -33,12 +33,17 @@ class FilterSection:
     # is understated, up to max_q_scale times its variance (navd/core/aiding/adaptive_noise.py)
     adaptive_noise: bool = _f(True)
     max_q_scale: float = _f(25.0)
+    # ... and the gyro-bias random walk when the innovations persist from epoch to epoch (a
+    # bias that drifts faster than configured: a warming MEMS gyro), up to this many times
+    # its variance (1e6: 1000x the density, 5000 deg/h/sqrt(h) for the consumer grade)
+    max_bias_q_scale: float = _f(1e6)
 
     def validate(self) -> None:
         check(0.5 < self.gate_prob < 1.0, "filter", "gate_prob", "in (0.5, 1)")
         check(self.max_lockout >= 0.0, "filter", "max_lockout_s", ">= 0 (0 = never reset)")
         check(self.cov_interval > 0.0, "filter", "cov_interval_ms", "> 0")
         check(self.max_q_scale >= 1.0, "filter", "max_q_scale", ">= 1")
+        check(self.max_bias_q_scale >= 1.0, "filter", "max_bias_q_scale", ">= 1")
 
 
 # [imu] grade presets, in the units of their TOML keys (as a user writes them).  A user who

@@ -98,6 +98,8 @@ class GnssAiding:
             "q_scale": self.adaptive.scale,
             # ... and of the GNSS velocity accuracy
             "r_scale": self.adaptive.r_scale,
+            # ... and of the gyro-bias random walk
+            "bias_q_scale": self.adaptive.bias_scale,
         }
 
     def fuse(self, est: Estimator, g: GnssSample) -> bool:
