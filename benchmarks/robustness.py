@@ -23,6 +23,9 @@ Per case (pooled over seeds; instants every 0.1 s of sensor time after navigatio
   the same kind, or to the end of the data if none follows; epochs where nothing was tried
   (before navigation, stale) neither start nor end it.  ``lock_all_s`` in the JSON is the
   brief's stricter figure: epochs whose position *and* velocity were both refused.
+* ``NEES a/v``: mean attitude / velocity NEES after 60 s, pooled over seeds (3 dof each: 3
+  for a consistent filter; the JSON's ``nees_band`` is the 99 % band of that mean, one
+  independent sample per 2 s; see :func:`nees_figures`).  Simulated cases only.
 * ``resets``: estimator counters named ``reinit*``, ``reset_*`` or ``*_reset``, summed over
   seeds.
 * ``target``: the issue-14 target that applies, and ``ok``/``MISS``.
@@ -260,7 +263,9 @@ class RunResult:
 
     ``t_s`` (K,) s since the start of the data; ``err_deg``/``sd_deg`` (K, 3) roll, pitch,
     heading error and the filter's 1-sigma, deg; ``aligned`` (K,) heading aligned;
-    ``lock_*_s`` longest lock-outs, s; ``resets`` count; ``counters`` at the end.
+    ``lock_*_s`` longest lock-outs, s; ``resets`` count; ``counters`` at the end;
+    ``nees_att`` / ``nees_vel`` (K,) the attitude and velocity NEES (3 dof each, see
+    :class:`firmware_sim.score.Score`; empty when not scored).
     """
 
     t_s: Arr
@@ -272,6 +277,8 @@ class RunResult:
     lock_all_s: float
     resets: int
     counters: dict[str, int]
+    nees_att: Arr = field(default_factory=lambda: np.zeros(0))
+    nees_vel: Arr = field(default_factory=lambda: np.zeros(0))
 
 
 def _lockouts(g: GnssOutcomes, t_end_us: int) -> tuple[float, float, float]:
@@ -300,7 +307,7 @@ def score_sim(run: SimRun, profile: str, overrides: tuple[str, ...] = ()) -> Run
     sc: Score = score_run(tapped, est.cfg, 10.0, est=est)
     lp, lv, la = _lockouts(tapped.outcomes, int(run.imu_t_us[-1]))
     return RunResult(sc.t_s, sc.euler_err_deg, sc.euler_sd_deg, sc.aligned, lp, lv, la,
-                     resets(sc.counters), sc.counters)
+                     resets(sc.counters), sc.counters, sc.nees_att, sc.nees_vel)
 
 
 def _rms(x: Arr) -> float:
@@ -337,8 +344,35 @@ def row_figures(results: Sequence[RunResult], target: str) -> dict[str, Any]:
     late = t >= 60.0
     rec["tilt_max_after_60s_deg"] = (float(np.max(np.abs(err[late, :2]))) if late.any()
                                      else math.nan)
+    rec.update(nees_figures(results))
     rec.update(verdict(rec, target))
     return rec
+
+
+NEES_FROM_S = 60.0  # NEES averaged after this (the start's transients are not consistency)
+NEES_BLOCK_S = 2.0  # errors 0.1 s apart are correlated: one independent sample per block
+
+
+def nees_figures(results: Sequence[RunResult]) -> dict[str, Any]:
+    """Mean attitude and velocity NEES after NEES_FROM_S pooled over the runs, and the 99 %
+    band a consistent filter's mean falls in (3 dof per instant; the mean of k independent
+    samples is chi-square(3k)/k, k = one per NEES_BLOCK_S of data).  NaN without NEES."""
+    att, vel, k = [], [], 0
+    for r in results:
+        if r.nees_att.size != r.t_s.size or r.nees_vel.size != r.t_s.size:
+            continue
+        m = r.t_s >= NEES_FROM_S
+        if not m.any():
+            continue
+        att.append(r.nees_att[m])
+        vel.append(r.nees_vel[m])
+        k += max(1, int((r.t_s[m][-1] - r.t_s[m][0]) / NEES_BLOCK_S))
+    if not att:
+        return {"nees_att": math.nan, "nees_vel": math.nan, "nees_band": [math.nan, math.nan]}
+    from navd.core.chi2 import chi2_quantile
+    return {"nees_att": float(np.mean(np.concatenate(att))),
+            "nees_vel": float(np.mean(np.concatenate(vel))),
+            "nees_band": [chi2_quantile(0.005, 3 * k) / k, chi2_quantile(0.995, 3 * k) / k]}
 
 
 def _le(x: float, lim: float) -> bool:
@@ -568,12 +602,14 @@ def format_row(rec: Mapping[str, Any]) -> str:
     lock = f"{_f(rec['lock_pos_s'], '.1f')}/{_f(rec['lock_vel_s'], '.1f')}"
     ok = "ok" if not rec["misses"] else "MISS " + ",".join(rec["misses"])
     hdg = _f(rec["heading_rms_deg"], "8.3f") + _f(rec["heading_aligned_rms_deg"], "8.3f")
+    nees = (f"{_f(rec.get('nees_att', math.nan), '.1f')}/"
+            f"{_f(rec.get('nees_vel', math.nan), '.1f')}")
     return (f"{name}{hdg}{_f(rec['roll_rms_deg'], '8.3f')}{_f(rec['pitch_rms_deg'], '8.3f')}"
-            f"  {ex:<17}{lock:>13}{rec['resets']:>7}  {rec['target']:<35}{ok}")
+            f"  {ex:<17}{lock:>13}{rec['resets']:>7} {nees:>10}  {rec['target']:<35}{ok}")
 
 
 HEADER = (f"{'case':<13}{'hdg':>8}{'hdg al':>8}{'roll':>8}{'pitch':>8}  {'>3s r/p/h %':<17}"
-          f"{'lock p/v s':>13}{'resets':>7}  {'target':<35}verdict")
+          f"{'lock p/v s':>13}{'resets':>7} {'NEES a/v':>10}  {'target':<35}verdict")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -628,6 +664,8 @@ def main(argv: list[str] | None = None) -> int:
           "real logs vs ATT, no heading);")
     print("lock p/v: longest GNSS position / velocity lock-out (worst seed); resets: reinit* + "
           "reset_* + *_reset counters (sum over seeds)")
+    print(f"NEES a/v: mean attitude / velocity NEES after {NEES_FROM_S:.0f} s (3 dof: 3 if "
+          "consistent; 99 % band in the JSON, nees_band)")
     print(f"({time.perf_counter() - t_start:.0f} s)")
     if a.json:
         with open(a.json, "w") as fh:
