@@ -514,6 +514,34 @@ def reference_errors(t_us: npt.NDArray[np.int64], angles_rad: Arr,
     return err, near
 
 
+def reference_gyro_corr(imu_t_us: npt.NDArray[np.int64], rates_rps: Arr,
+                        ref_t_us: npt.NDArray[np.int64], roll_rad: Arr, pitch_rad: Arr,
+                        from_us: int, to_us: int | None, step_s: float = 0.05
+                        ) -> list[float]:
+    """Does the reference follow the log's own gyros?  Correlation of the body x (y) rate
+    with the reference's roll (pitch) rate on a ``step_s`` grid over the flight: near 1 for an
+    attitude of this IMU on this clock (X8 0.85/0.92, quad123 0.85/0.74), near 0 or negative
+    when the reference is something else (f450_glitch -0.45/0.26).  The Euler rates equal the
+    body rates only near level; the correlation tolerates that.
+
+    Args:
+        imu_t_us: (N,) IMU times, us; rates_rps: (N, 3) body rates, rad/s.
+        ref_t_us: (R,) reference times, us; roll_rad, pitch_rad: (R,) angles, rad.
+        from_us, to_us: the flight window (to_us None: to the end).
+    """
+    lo = max(int(imu_t_us[0]), int(ref_t_us[0]), from_us)
+    hi = min(int(imu_t_us[-1]), int(ref_t_us[-1]), to_us if to_us is not None else 2**62)
+    if hi - lo < 10_000_000:
+        return [math.nan, math.nan]
+    grid = np.arange(lo, hi, step_s * 1e6)
+    out = []
+    for k, ang in ((0, roll_rad), (1, pitch_rad)):
+        g = np.interp(grid, imu_t_us.astype(np.float64), rates_rps[:, k])
+        a = np.gradient(np.interp(grid, ref_t_us.astype(np.float64), np.unwrap(ang)), step_s)
+        out.append(float(np.corrcoef(g, a)[0, 1]))
+    return out
+
+
 def score_log(spec: RealLog, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
     """Replay one real log with the default config (plus ``overrides``: experiments); a row
     dict (``reason`` when no figures)."""
@@ -565,6 +593,9 @@ def score_log(spec: RealLog, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
         "exceed3_roll_pct": _pct(exceed[:, 0]), "exceed3_pitch_pct": _pct(exceed[:, 1]),
         "exceed3_heading_pct": math.nan,
         "lock_pos_s": lp, "lock_vel_s": lv, "lock_all_s": la, "resets": resets(est.counters),
+        "ref_gyro_corr": reference_gyro_corr(
+            data.imu_t_us[1:], rates, ref.t_us, ref.roll_rad, ref.pitch_rad,
+            int(t0 + start * 1e6), int(t0 + end * 1e6) if math.isfinite(end) else None),
     })
     rec.update(verdict(rec, "real"))
     return rec
@@ -666,6 +697,11 @@ def main(argv: list[str] | None = None) -> int:
           "reset_* + *_reset counters (sum over seeds)")
     print(f"NEES a/v: mean attitude / velocity NEES after {NEES_FROM_S:.0f} s (3 dof: 3 if "
           "consistent; 99 % band in the JSON, nees_band)")
+    corr = [f"{r['case']} {r['ref_gyro_corr'][0]:.2f}/{r['ref_gyro_corr'][1]:.2f}"
+            for r in records if "ref_gyro_corr" in r]
+    if corr:
+        print("reference vs the log's gyros (corr. of roll/pitch rate with body x/y rate; "
+              "near 1: the reference is this IMU's attitude): " + ", ".join(corr))
     print(f"({time.perf_counter() - t_start:.0f} s)")
     if a.json:
         with open(a.json, "w") as fh:

@@ -148,3 +148,26 @@ def test_nees_figures_and_band(b: ModuleType) -> None:
     assert lo < lo5 < 3.0 < hi5 < hi
     bare = b.RunResult(t, zero, zero, np.ones(t.size, bool), 0.0, 0.0, 0.0, 0, {})
     assert math.isnan(b.nees_figures([bare])["nees_att"])
+
+
+def test_reference_gyro_corr_tells_a_reference_of_this_imu_from_another(b: ModuleType) -> None:
+    """GIVEN 60 s of body rates (100 Hz) and a reference (10 Hz) whose roll/pitch are their
+    integrals, or the integrals negated, or an unrelated signal,
+    WHEN reference_gyro_corr compares them,
+    THEN the correlation is > 0.95, < -0.95 and within 0.2 of zero, and a window shorter
+    than 10 s gives NaN."""
+    t = np.arange(0, 60_000_000, 10_000, dtype=np.int64)
+    ts = t * 1e-6
+    rates = np.stack([0.3 * np.sin(1.3 * ts), 0.2 * np.cos(0.7 * ts), 0 * ts], axis=1)
+    roll = -0.3 / 1.3 * np.cos(1.3 * ts)
+    pitch = 0.2 / 0.7 * np.sin(0.7 * ts)
+    rt = t[::10]
+    same = b.reference_gyro_corr(t, rates, rt, roll[::10], pitch[::10], 0, None)
+    flip = b.reference_gyro_corr(t, rates, rt, -roll[::10], -pitch[::10], 0, None)
+    rng = np.random.default_rng(3)
+    other = b.reference_gyro_corr(t, rates, rt, np.cumsum(rng.normal(0, 0.01, rt.size)),
+                                  np.cumsum(rng.normal(0, 0.01, rt.size)), 0, None)
+    assert min(same) > 0.95 and max(flip) < -0.95
+    assert max(abs(x) for x in other) < 0.2
+    assert all(math.isnan(x) for x in b.reference_gyro_corr(t, rates, rt, roll[::10],
+                                                            pitch[::10], 0, 5_000_000))
