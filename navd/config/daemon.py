@@ -61,12 +61,21 @@ class DaemonSection:
     log_level: str = _f("info", choices=("debug", "info", "warning", "error"))
     event_loop: str = _f("auto", choices=("auto", "uvloop", "asyncio"))
     rx_buffer: int = _f(1 << 20, "bytes")  # UDP input socket receive buffer
+    # read pacing (navd.io.read_pacing): the UDP input may stay unread up to this long
+    # between output instants (0: read every datagram as it arrives), and is read again
+    # this long before the next output instant's sample is due
+    read_hold_max: float = _f(10.0, "ms")
+    read_hold_margin: float = _f(2.0, "ms")
     # navigating without a fused GNSS fix for this long (sensor time) is "coasting"
     gnss_timeout: float = _f(3.0, "s")
 
     def validate(self) -> None:
         s = "daemon"
         check(self.rx_buffer >= 0, s, "rx_buffer_bytes", "a byte count >= 0")
+        check(0.0 <= self.read_hold_max <= 0.1, s, "read_hold_max_ms",
+              "a number of milliseconds in [0, 100]")
+        check(self.read_hold_margin >= 0.0, s, "read_hold_margin_ms",
+              "a number of milliseconds >= 0")
         check(self.queue_size >= 16, s, "queue_size", "an integer >= 16 (samples)")
         check(0.05 <= self.status_period <= 3600.0, s, "status_period_s",
               "a number of seconds in [0.05, 3600]")

@@ -63,6 +63,7 @@ from navd.diag import RateLimitedLog
 from navd.io.common import Sample
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink
 from navd.io.mavlink.autopilot import AutopilotPolicy, HeadingResetSchedule
+from navd.io.read_pacing import ReadPacer
 from navd.io.recording import RecordingError, RecordingWriter
 from navd.io.zenoh import ZenohPublisher, attitude_key, status_key
 from navd.pipeline import build_estimator, output_instant
@@ -375,6 +376,16 @@ class Daemon:
             self.foxglove_sink = FoxgloveSink(live, f.rate, "foxglove")
             sinks.append(self.foxglove_sink)
         self.sinks = sinks + self._extra
+        hold = round(c.daemon.read_hold_max * 1e6)
+        if hold > 0 and self.sinks:
+            # outputs are due on the sinks' grids of sensor time: between two instants the
+            # UDP input may wait in the socket and be read in one batch (issue 18)
+            pacer = ReadPacer([s.schedule.period_us for s in self.sinks], hold,
+                              round(c.daemon.read_hold_margin * 1e6))
+            if self.sources.pace_reads(pacer):
+                _log.info("UDP input read in batches between output instants (at most "
+                          "%.0f ms apart, from %.0f ms before each)", hold * 1e-3,
+                          c.daemon.read_hold_margin * 1e3)
         if self.record_path:
             rate = 1e6 / self.sinks[0].schedule.period_us if self.sinks else m.attitude_rate
             try:

@@ -33,6 +33,7 @@ from navd.daemon.adapters import dronecan_bus_config, mavlink_input_config
 from navd.diag import RateLimitedLog
 from navd.io.common import Sample, SampleCallback
 from navd.io.mavlink import MavlinkDecoder, MavlinkLink
+from navd.io.read_pacing import ReadPacer
 
 if TYPE_CHECKING:  # imported when DroneCAN is opened (see adapters.dronecan_bus_config)
     from navd.io.dronecan import DronecanDecoder, DronecanLink
@@ -326,6 +327,12 @@ class Sources:
         """The DroneCAN input bus, for the Solution sink."""
         inp = self.inputs.get(DronecanInput.kind)
         return inp.link if isinstance(inp, DronecanInput) else None
+
+    def pace_reads(self, pacer: ReadPacer) -> bool:
+        """Read the MAVLink UDP input in batches between output instants
+        (:mod:`navd.io.read_pacing`); False when there is no such input."""
+        link = self.mavlink
+        return link is not None and link.pace_reads(pacer)
 
     def counters(self) -> dict[str, dict[str, int]]:
         out: dict[str, dict[str, int]] = {}

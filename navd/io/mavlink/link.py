@@ -30,7 +30,8 @@ from navd.io.adapter import SampleDelivery
 from navd.io.common import SampleCallback, monotonic_us
 from navd.io.mavlink.decode import MavlinkDecoder
 from navd.io.mavlink.encode import MavlinkEncoder
-from navd.types import NavSolution
+from navd.io.read_pacing import ReadPacer
+from navd.types import ImuSample, NavSolution
 
 __all__ = [
     "LinkAddress",
@@ -38,6 +39,7 @@ __all__ = [
     "MavlinkSender",
     "MavlinkStreamProtocol",
     "MavlinkUdpProtocol",
+    "PacedUdpTransport",
     "open_mavlink",
     "parse_mavlink_url",
 ]
@@ -50,6 +52,10 @@ JUNK_WINDOW_US = 1_000_000
 JUNK_BUDGET_BYTES = 32_768
 MUTE_US = 1_000_000
 _MAX_PEERS = 64
+# datagrams read per readiness callback at most, so one input cannot hold the loop
+_MAX_BATCH = 256
+# read buffer: the largest UDP payload, so an oversize datagram is seen (and refused) whole
+_RX_BYTES = 65536
 
 
 @dataclass(frozen=True)
@@ -95,6 +101,7 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
         self._mute_log: RateLimitedLog | None = None
         # per address: receive time (us) of its last datagram that gave samples
         self._useful: dict[tuple[Any, ...], int] = {}
+        self.pacer: ReadPacer | None = None  # told the IMU stamps read (read pacing)
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         # The selector loop's datagram transport does not subclass asyncio.DatagramTransport
@@ -120,6 +127,11 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
             if len(self._useful) >= _MAX_PEERS and addr not in self._useful:
                 self._useful.clear()
             self._useful[addr] = now
+            pacer = self.pacer
+            if pacer is not None:
+                for s in samples:
+                    if type(s) is ImuSample:
+                        pacer.note(s.t_us, now)
         if junk:
             self._note_junk(addr, junk, now)
         self._deliver(samples)
@@ -181,6 +193,110 @@ class MavlinkStreamProtocol(_Delivering, asyncio.Protocol):
             _log.warning("MAVLink stream closed: %s", exc)
         if not self.closed.done():
             self.closed.set_result(None)
+
+
+class PacedUdpTransport(asyncio.DatagramTransport):
+    """A listening (``udpin``) UDP socket read by navd itself rather than by the event
+    loop's datagram transport, so that reading can be paced (:mod:`navd.io.read_pacing`).
+
+    Each readiness callback drains the socket (up to ``_MAX_BATCH`` datagrams, each handed
+    to ``datagram_received`` in arrival order); then, while ``hold_us`` (set by the daemon
+    through :meth:`MavlinkLink.pace_reads`) says no output instant is near, the socket is
+    taken off the loop and read again when the hold ends: at 1 kHz the loop wakes a few
+    times per output period instead of once per datagram.  Without ``hold_us`` every
+    datagram is read as it arrives, as by the loop's own transport.
+    """
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, sock: socket.socket,
+                 protocol: MavlinkUdpProtocol) -> None:
+        super().__init__({"socket": sock, "sockname": sock.getsockname()})
+        self._loop = loop
+        self._sock = sock
+        self._fd = sock.fileno()
+        self._protocol = protocol
+        self._buf = bytearray(_RX_BYTES)
+        self._view = memoryview(self._buf)
+        self._closing = False
+        self._timer: asyncio.TimerHandle | None = None
+        self.hold_us: Callable[[], int] | None = None
+        protocol.connection_made(self)
+        loop.add_reader(self._fd, self._readable)
+
+    @classmethod
+    def bind(cls, loop: asyncio.AbstractEventLoop, host: str, port: int,
+             protocol: MavlinkUdpProtocol) -> PacedUdpTransport:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+        family, _, _, _, addr = infos[0]
+        sock = socket.socket(family, socket.SOCK_DGRAM)
+        try:
+            sock.setblocking(False)
+            sock.bind(addr)
+        except BaseException:
+            sock.close()
+            raise
+        return cls(loop, sock, protocol)
+
+    def _readable(self) -> None:
+        recv = self._sock.recvfrom_into
+        view = self._view
+        deliver = self._protocol.datagram_received
+        for _ in range(_MAX_BATCH):
+            try:
+                n, addr = recv(self._buf)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError as exc:  # ICMP errors and the like: the socket lives on
+                self._protocol.error_received(exc)
+                break
+            deliver(bytes(view[:n]), addr)
+        else:
+            return  # more may be waiting: stay on the loop, read on at the next turn
+        hold = self.hold_us
+        if hold is None or self._closing:
+            return
+        us = hold()
+        if us > 0:
+            self._loop.remove_reader(self._fd)
+            self._timer = self._loop.call_later(us * 1e-6, self._resume)
+
+    def _resume(self) -> None:
+        self._timer = None
+        if self._closing:
+            return
+        self._loop.add_reader(self._fd, self._readable)
+        self._readable()  # what arrived during the hold
+
+    def sendto(self, data: bytes | bytearray | memoryview,  # type: ignore[override]
+               addr: tuple[Any, ...] | None = None) -> None:
+        if self._closing:
+            return
+        try:
+            if addr is None:
+                self._sock.send(data)
+            else:
+                self._sock.sendto(data, addr)
+        except OSError as exc:  # a full send buffer or an ICMP error: this frame is lost
+            self._protocol.error_received(exc)
+
+    def is_closing(self) -> bool:
+        return self._closing
+
+    def close(self) -> None:
+        if self._closing:
+            return
+        self._closing = True
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        self._loop.remove_reader(self._fd)
+        self._sock.close()
+        self._loop.call_soon(self._protocol.connection_lost, None)
+
+    def abort(self) -> None:
+        self.close()
+
+    def get_write_buffer_size(self) -> int:
+        return 0
 
 
 class _WriteOnlyProtocol(asyncio.BaseProtocol):
@@ -252,12 +368,12 @@ class MavlinkLink:
         link = cls(addr, counters, max_tx_buffer)
         if addr.kind in ("udpin", "udpout"):
             proto = MavlinkUdpProtocol(decoder, on_sample, clock_us)
-            kw: dict[str, Any] = (
-                {"local_addr": (addr.host, addr.port)}
-                if addr.kind == "udpin"
-                else {"remote_addr": (addr.host, addr.port)}
-            )
-            transport, _ = await loop.create_datagram_endpoint(lambda: proto, **kw)
+            transport: asyncio.DatagramTransport
+            if addr.kind == "udpin":  # the input link: navd reads it itself (read pacing)
+                transport = PacedUdpTransport.bind(loop, addr.host, addr.port, proto)
+            else:
+                transport, _ = await loop.create_datagram_endpoint(
+                    lambda: proto, remote_addr=(addr.host, addr.port))
             link._udp = proto
             link._udp_transport = transport
         else:
@@ -343,6 +459,17 @@ class MavlinkLink:
             return None
         sockname: tuple[Any, ...] | None = t.get_extra_info("sockname")
         return sockname
+
+    def pace_reads(self, pacer: ReadPacer) -> bool:
+        """Read a listening UDP link in batches between output instants
+        (:mod:`navd.io.read_pacing`); False (nothing changes) for other links."""
+        t = self._udp_transport
+        if not isinstance(t, PacedUdpTransport) or self._udp is None:
+            return False
+        self._udp.pacer = pacer
+        clock = self._udp.clock_us
+        t.hold_us = lambda: pacer.hold_us(clock())
+        return True
 
     def set_receive_buffer(self, nbytes: int) -> int:
         """Ask for an ``nbytes`` socket receive buffer on a UDP link (the kernel caps it at

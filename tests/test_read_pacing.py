@@ -1,0 +1,171 @@
+"""Read pacing (issue 18): the UDP input is read in batches between output instants, and
+only the sample completing an instant has to be read as it arrives."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import threading
+import time
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from navd.io.mavlink import MavlinkDecoder, MavlinkInputConfig, MavlinkLink
+from navd.io.mavlink.link import PacedUdpTransport
+from navd.io.read_pacing import ReadPacer
+from navd.types import ImuSample, Sample
+
+
+def _live(pacer: ReadPacer, t_end_us: int, lag_us: int, late: dict[int, int] | None = None
+          ) -> None:
+    """Note a 1 kHz stream read ``lag_us`` after each stamp (host = sensor + lag; samples
+    in ``late`` read that much later)."""
+    for t in range(1000, t_end_us + 1, 1000):
+        pacer.note(t, t + lag_us + (late or {}).get(t, 0))
+
+
+def test_hold_until_margin_before_the_next_instant() -> None:
+    """GIVEN a live 1 kHz stream read 300 us after each stamp and 50 Hz outputs,
+    WHEN asked right after reading the sample at 401 ms,
+    THEN the socket may stay unread until 2 ms before the 420 ms sample is due, capped
+    at the maximum hold; close to the instant it is read on (0)."""
+    p = ReadPacer([20_000], max_hold_us=10_000, margin_us=2_000)
+    _live(p, 401_000, 300)
+    assert p.hold_us(401_300) == 10_000  # 420_300 - 2_000 - 401_300 = 17 ms, capped
+    p2 = ReadPacer([20_000], max_hold_us=50_000, margin_us=2_000)
+    _live(p2, 401_000, 300)
+    assert p2.hold_us(401_300) == 420_300 - 2_000 - 401_300
+    _live(p2, 417_000, 300)
+    assert p2.hold_us(417_300) == 1_000  # exactly the minimum hold
+    _live(p2, 418_000, 300)
+    assert p2.hold_us(418_300) == 0  # the instant is near: read every datagram
+
+
+def test_a_late_sample_does_not_move_the_expected_arrival() -> None:
+    """GIVEN a live stream whose sample at 402 ms was read 6 ms late (a stalled sender),
+    WHEN asked right after reading it,
+    THEN the hold ends 2 ms before the 420 ms sample is due at the usual lag, not 6 ms
+    later."""
+    p = ReadPacer([20_000], max_hold_us=50_000, margin_us=2_000)
+    _live(p, 402_000, 300, late={402_000: 6_000})
+    assert p.hold_us(408_300) == 420_300 - 2_000 - 408_300
+
+
+def test_the_fastest_sink_decides_and_unknown_rate_reads_on() -> None:
+    """GIVEN sinks at 50 Hz and 200 Hz,
+    THEN the 200 Hz grid sets the next instant; before the rate is known (first 0.2 s) and
+    for a stream 16x faster than real time nothing is held."""
+    p = ReadPacer([20_000, 5_000], max_hold_us=50_000, margin_us=1_000)
+    p.note(1_000, 1_100)
+    assert p.hold_us(1_100) == 0  # rate not known yet
+    _live(p, 401_000, 100)
+    assert p.hold_us(401_100) == 405_100 - 1_000 - 401_100
+    fast = ReadPacer([20_000], max_hold_us=10_000, margin_us=2_000)
+    for k in range(1, 8001):  # 16 kHz of sensor time per host second
+        fast.note(k * 1000, k * 1000 // 16)
+    assert fast.hold_us(8_000_000 // 16) == 0
+
+
+def test_clock_restart_stops_holding_until_the_rate_is_measured_again() -> None:
+    p = ReadPacer([20_000], max_hold_us=10_000)
+    _live(p, 401_000, 300)
+    assert p.hold_us(401_300) > 0
+    p.note(1_000, 500_000)  # the sensor clock started over
+    assert p.hold_us(500_000) == 0
+
+
+def _imu_frames(n: int) -> list[bytes]:
+    m = mav.MAVLink(None, srcSystem=1, srcComponent=1)
+    out = []
+    for k in range(1, n + 1):
+        msg = mav.MAVLink_highres_imu_message(k * 1000, 0.0, 0.0, -9.8, 0.0, 0.0, 0.01, 0.0,
+                                              0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0x3F, 0)
+        out.append(msg.pack(m))
+    return out
+
+
+def _send_paced(port: int, frames: list[bytes], period_s: float) -> None:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    t0 = time.monotonic()
+    for k, f in enumerate(frames):
+        delay = t0 + k * period_s - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        s.sendto(f, ("127.0.0.1", port))
+    s.close()
+
+
+@pytest.mark.parametrize("paced", [True, False])
+def test_paced_udp_link_reads_everything_in_order_with_fewer_wake_ups(paced: bool) -> None:
+    """GIVEN a navd udpin link receiving 1000 HIGHRES_IMU datagrams at 1 kHz,
+    WHEN its reads are paced for 50 Hz outputs (or not),
+    THEN every sample arrives, in order; paced, once the pace is measured (the last 600
+    datagrams) the socket is read in well under half as many wake-ups as datagrams,
+    unpaced about once per datagram."""
+    frames = _imu_frames(1000)
+    got: list[Sample] = []
+    wakes = 0
+
+    async def main() -> None:
+        nonlocal wakes
+        cfg = MavlinkInputConfig(nominal_imu_rate_hz=1000.0, relock_s=None)
+        link = await MavlinkLink.open("udpin:127.0.0.1:0", MavlinkDecoder(cfg), got.append)
+        t = link._udp_transport
+        assert isinstance(t, PacedUdpTransport)
+        inner = t._readable
+
+        def counting() -> None:
+            nonlocal wakes
+            if len(got) >= 400:
+                wakes += 1
+            inner()
+
+        # the loop calls the bound method it was given: hand it the counting one
+        asyncio.get_running_loop().remove_reader(t._fd)
+        t._readable = counting  # type: ignore[method-assign]
+        asyncio.get_running_loop().add_reader(t._fd, counting)
+        if paced:
+            assert link.pace_reads(ReadPacer([20_000], 10_000, 2_000))
+        port = link.local_address[1] if link.local_address else 0
+        th = threading.Thread(target=_send_paced, args=(port, frames, 1e-3))
+        th.start()
+        while th.is_alive():
+            await asyncio.sleep(0.05)
+        await asyncio.sleep(0.1)
+        link.close()
+
+    asyncio.run(main())
+    ts = [s.t_us for s in got if isinstance(s, ImuSample)]
+    assert ts == [k * 1000 for k in range(1, 1001)]
+    if paced:
+        assert wakes < 0.4 * 600, wakes
+    else:
+        assert wakes > 0.6 * 600, wakes
+
+
+def test_paced_link_refuses_an_oversize_datagram_by_its_real_size() -> None:
+    """GIVEN a 20,000-byte datagram on a navd udpin link (limit 16,384),
+    THEN it is refused unread and counted as oversize; the frame after it is decoded."""
+    got: list[Sample] = []
+
+    async def main() -> dict[str, int]:
+        cfg = MavlinkInputConfig(nominal_imu_rate_hz=1000.0, relock_s=None)
+        dec = MavlinkDecoder(cfg)
+        link = await MavlinkLink.open("udpin:127.0.0.1:0", dec, got.append)
+        port = link.local_address[1] if link.local_address else 0
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        s.sendto(b"\xfd" * 20_000, ("127.0.0.1", port))
+        for f in _imu_frames(2):
+            s.sendto(f, ("127.0.0.1", port))
+        s.close()
+        for _ in range(40):
+            await asyncio.sleep(0.025)
+            if len(got) >= 1:
+                break
+        link.close()
+        return dec.counters.snapshot()
+
+    c = asyncio.run(main())
+    assert c.get("oversize") == 1 and c.get("datagrams") == 3, c
+    assert [s.t_us for s in got] == [1000, 2000]
