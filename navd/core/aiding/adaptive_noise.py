@@ -104,6 +104,7 @@ class AdaptiveNoise:
         self._s[_PN] = math.nan
         # this window's NIS over its chi-square median (refused epochs: inf)
         self._ratio = np.zeros(_WINDOW)
+        self._sorted = np.zeros(_WINDOW)  # scratch for the window's median
         imu = cfg.imu
         self._q_white = (imu.gyro_arw ** 2, imu.accel_vrw ** 2)
         self._q_bg = imu.gyro_bias_rw ** 2
@@ -138,6 +139,22 @@ class AdaptiveNoise:
         s = self._s
         s[_HIGH] = s[_N] = s[_SZZ] = s[_SZ2] = 0.0
         s[_PN] = math.nan
+
+    def _median_ratio(self) -> float:
+        """The window's median NIS ratio, sorted in preallocated scratch (np.median copies
+        and ndarray.sort takes a few kB: a GNSS epoch allocates nothing, even the one that
+        ends a window with a decision)."""
+        w = self._sorted
+        r = self._ratio
+        for i in range(_WINDOW):  # insertion sort, once per window
+            x = float(r[i])
+            j = i - 1
+            while j >= 0 and w[j] > x:
+                w[j + 1] = w[j]
+                j -= 1
+            w[j + 1] = x
+        h = _WINDOW // 2
+        return float(w[h]) if _WINDOW % 2 else 0.5 * (float(w[h - 1]) + float(w[h]))
 
     def _settled(self, est: Estimator) -> bool:
         P = est.P
@@ -193,7 +210,7 @@ class AdaptiveNoise:
             # the median NIS ratio says how far off the innovation covariance is: step by
             # it (at least _STEP, at most _MAX_STEP) so a 9x understated noise is found in
             # a few windows, not a dozen
-            step = min(max(float(np.median(self._ratio)), _STEP), _MAX_STEP)
+            step = min(max(self._median_ratio(), _STEP), _MAX_STEP)
             # which one: a filter that trusts its propagation too much under-corrects, so
             # its innovations stay correlated from epoch to epoch (rho > 0); one that trusts
             # noisy fixes too much chases their noise and over-corrects (rho < 0)
