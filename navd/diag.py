@@ -25,6 +25,12 @@ class Counters:
     def inc(self, name: str, n: int = 1) -> None:
         self._counts[name] = self._counts.get(name, 0) + n
 
+    @property
+    def counts(self) -> dict[str, int]:
+        """The live name -> count mapping, for a per-sample path that counts without a
+        method call per event (issue 18); only ever add to it."""
+        return self._counts
+
     def __getitem__(self, name: str) -> int:
         return self._counts.get(name, 0)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
 import os
@@ -757,3 +758,33 @@ def test_polarization_time_beyond_two_to_the_53_is_refused_like_other_samples() 
     assert dec.counters["pol_time_out_of_range"] == 1
     out = dec.feed_datagram(good, 0)
     assert len(out) == 1 and out[0].t_us == 5_000_000 and dec.counters["pol_ok"] == 1
+
+
+def test_one_datagram_per_output_instant() -> None:
+    """GIVEN a MAVLink sender with ATTITUDE_QUATERNION and GLOBAL_POSITION_INT on,
+    WHEN it sends one solution over UDP,
+    THEN exactly one datagram arrives, and pymavlink decodes ATTITUDE,
+    ATTITUDE_QUATERNION and GLOBAL_POSITION_INT from it, all stamped with the solution's
+    time (issue 18: one system call and one receiver wake-up per output instant)."""
+    async def main() -> list[bytes]:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx:
+            rx.bind(("127.0.0.1", 0))
+            rx.settimeout(2.0)
+            link = await MavlinkLink.open(f"udpout:127.0.0.1:{rx.getsockname()[1]}")
+            try:
+                MavlinkSender(link, MavlinkEncoder(sysid=9), send_global_position=True,
+                              home_alt_m=0.0).send_solution(solution())
+                got = [rx.recv(4096)]
+                rx.settimeout(0.2)
+                with contextlib.suppress(TimeoutError):  # a second datagram: the failure
+                    got.append(rx.recv(4096))
+                return got
+            finally:
+                link.close()
+
+    datagrams = asyncio.run(main())
+    assert len(datagrams) == 1
+    msgs = mav.MAVLink(None).parse_buffer(datagrams[0]) or []
+    assert [m.get_type() for m in msgs] == ["ATTITUDE", "ATTITUDE_QUATERNION",
+                                           "GLOBAL_POSITION_INT"]
+    assert len({m.time_boot_ms for m in msgs}) == 1

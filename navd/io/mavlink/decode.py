@@ -38,15 +38,14 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from navd.core.plausible import gnss_reason
+from navd.core.plausible import gnss_reason, imu_reason
 from navd.diag import Counters, RateLimitedLog
 from navd.io import pol_wire
-from navd.io.adapter import DecoderBase
+from navd.io.adapter import MAX_SENSOR_T_US, DecoderBase
 from navd.io.common import (
     Limits,
     Sample,
     all_finite,
-    imu_reject_reason,
 )
 from navd.io.mavlink.frame import MAX_FRAME_BYTES, Frame, FrameScanner, Rejects
 from navd.io.mavlink.signing import KEY_LEN, SignatureCheck
@@ -210,10 +209,11 @@ class _MsUnwrapper:
 class _Source:
     """Counters of one accepted source; ``prefix`` is ``src_<sysid>_<compid>_``."""
 
-    __slots__ = ("last_seq", "prefix")
+    __slots__ = ("frames_key", "last_seq", "prefix")
 
     def __init__(self, src: tuple[int, int]) -> None:
         self.prefix = f"src_{src[0]}_{src[1]}_"
+        self.frames_key = self.prefix + "frames"
         self.last_seq: int | None = None
 
 
@@ -260,6 +260,12 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         self.source_lock = (SourceLock(cfg.relock_s, self._reject, _source_text)
                             if cfg.relock_s is not None else None)
         self._recv_us = 0  # receive time of the frame being decoded (the lock's clock)
+        self.last_junk = 0  # bytes in no valid frame in the last feed_datagram
+        # per-sample path: the counters' dict and the IMU limits without a call or an
+        # attribute chain each time (issue 18)
+        self._counts = self.counters.counts
+        self._max_gyro = cfg.limits.max_gyro_rps
+        self._max_accel = cfg.limits.max_accel_mps2
         for name in cfg.imu_messages | cfg.gnss_messages:
             msgid: int = getattr(mavlink, f"MAVLINK_MSG_ID_{name}")
             self._handlers[msgid] = (LAYOUTS[msgid], getattr(self, f"_on_{name.lower()}"))
@@ -282,7 +288,9 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         return out
 
     def feed_datagram(self, data: bytes, recv_t_us: int) -> list[Sample]:
-        self.counters.inc("datagrams")
+        c = self._counts
+        c["datagrams"] = c.get("datagrams", 0) + 1
+        self.last_junk = 0
         if len(data) > self.config.max_datagram_bytes:
             # Refused unread: its cost must not depend on what an attacker put in it.
             self._reject("oversize", "datagram of %d bytes (limit %d)", len(data),
@@ -300,6 +308,7 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
             return [] if s is None else [s]
         rj = Rejects()
         out = self._decode(self._scanner.datagram(data, rj), rj, recv_t_us)
+        self.last_junk = rj.junk_bytes
         if rj.counts:
             self.counters.inc("datagrams_damaged")
             self._account(rj, "datagram", len(data))
@@ -326,7 +335,8 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
                          size, what)
 
     def _on_frame(self, f: Frame, recv_t_us: int) -> Sample | None:
-        self.counters.inc("frames_ok")
+        c = self._counts
+        c["frames_ok"] = c.get("frames_ok", 0) + 1
         src = (f.sysid, f.compid)
         source = self._sources.get(src)
         if source is not None:
@@ -360,9 +370,9 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
                 self.counters.inc("gnss_repeat")
                 return None
             self._last_gnss_t_us[key] = sample.t_us
-            self.counters.inc("gnss_ok")
+            c["gnss_ok"] = c.get("gnss_ok", 0) + 1
         else:
-            self.counters.inc("imu_ok")
+            c["imu_ok"] = c.get("imu_ok", 0) + 1
         if source is None:
             self._accepted(src, f.seq)
         return sample
@@ -377,10 +387,11 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
             return
         source = self._sources[src] = _Source(src)
         source.last_seq = seq
-        self.counters.inc(source.prefix + "frames")
+        self.counters.inc(source.frames_key)
 
     def _track(self, source: _Source, seq: int) -> None:
-        self.counters.inc(source.prefix + "frames")
+        c = self._counts
+        c[source.frames_key] = c.get(source.frames_key, 0) + 1
         last = source.last_seq
         source.last_seq = seq
         if last is None:
@@ -433,7 +444,7 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
     ) -> ImuSample | None:
         if t_us is None:
             return None
-        reason = imu_reject_reason(*gyro, *accel, self.config.limits)
+        reason = imu_reason(*gyro, *accel, self._max_gyro, self._max_accel)
         if reason is not None:
             # Rejecting before the time line advances lets the next good sample cover the
             # gap by zero-order hold instead of losing the interval.
@@ -515,13 +526,16 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
     def _on_highres_imu(self, src: tuple[int, int], f: Fields, recv_t_us: int) -> ImuSample | None:
         t, ax, ay, az, gx, gy, gz = f[:7]
         updated, imu_id = f[14], f[15]
-        if not self._imu_id_ok(imu_id):
+        cfg = self.config
+        if cfg.imu_id is not None and imu_id != cfg.imu_id and not self._imu_id_ok(imu_id):
             return None
-        if (self.config.require_fields_updated
+        if (cfg.require_fields_updated
                 and (updated & _HIGHRES_ACC_GYRO) != _HIGHRES_ACC_GYRO):
             self.counters.inc("imu_fields_not_updated")
             return None
-        t_us = self._stamp(t, recv_t_us, "imu")
+        # the usual stamp without a call: a sensor time in (0, 2**53] us, not overridden
+        t_us = (t if 0 < t <= MAX_SENSOR_T_US and not cfg.use_receive_time
+                else self._stamp(t, recv_t_us, "imu"))
         key = (src[0], src[1], mavlink.MAVLINK_MSG_ID_HIGHRES_IMU, imu_id)
         return self._imu_sample(key, t_us, (gx, gy, gz), (ax, ay, az))
 

@@ -119,10 +119,8 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
                 self.counters.inc("datagrams_muted")
                 return
             del self._muted[addr]
-        c = self.counters
-        junk0 = c["junk_bytes"]
         samples = dec.feed_datagram(data, now)
-        junk = c["junk_bytes"] - junk0
+        junk = dec.last_junk
         if samples:
             if len(self._useful) >= _MAX_PEERS and addr not in self._useful:
                 self._useful.clear()
@@ -553,15 +551,19 @@ class MavlinkSender:
         return self.link.send(data)
 
     def send_solution(self, sol: NavSolution) -> None:
+        """The solution's frames in one send: one datagram on UDP (MAVLink over UDP may
+        carry several frames per datagram, as ArduPilot sends them), so each output instant
+        costs one system call and one wake-up of the receiver rather than two or three."""
         ms = sol.t_us // 1000
-        self.send(self.encoder.encode_attitude(sol, ms))
+        out = self.encoder.encode_attitude(sol, ms)
         if self.send_quaternion:
-            self.send(self.encoder.encode_attitude_quaternion(sol, ms))
+            out += self.encoder.encode_attitude_quaternion(sol, ms)
         if self.send_global_position:
             try:
-                self.send(self.encoder.encode_global_position_int(sol, ms, self.home_alt_m))
+                out += self.encoder.encode_global_position_int(sol, ms, self.home_alt_m)
             except ValueError:
                 self.link.counters.inc("tx_nonfinite_position")
+        self.send(out)
 
     def send_heartbeat(self, system_status: int = mavlink.MAV_STATE_ACTIVE) -> bool:
         return self.send(self.encoder.encode_heartbeat(system_status))
