@@ -433,14 +433,19 @@ def test_gated_update_equals_textbook(m: int) -> None:
         assert nis2 == nis and np.array_equal(x3, x_got)
 
 
-@pytest.mark.parametrize("hold", [2, 9])
-def test_gated_update_with_a_held_state_is_the_schmidt_consider_update(hold: int) -> None:
-    """GIVEN random covariances and 1-, 3- and 4-row measurements, with state 2 or 9 held,
-    WHEN gated_update runs with that state held,
-    THEN it is the Schmidt consider update (zero gain for the held state, the Joseph form for the
-    covariance, valid for any gain), the held value and variance are unchanged, and P stays
-    positive definite."""
-    rng = np.random.default_rng(70 + hold)
+@pytest.mark.parametrize(("hold", "more"), [(2, ()), (9, ()), (2, (0, 1, 9, 10, 11, 12, 13)),
+                                          (-1, (0, 1, 12))])
+def test_gated_update_with_a_held_state_is_the_schmidt_consider_update(
+        hold: int, more: tuple[int, ...]) -> None:
+    """GIVEN random covariances and 1-, 3- and 4-row measurements, with state 2 or 9 held, alone
+    or with further states in ``hold_mask`` (the yaw bank's tilt-and-bias hold), or only those,
+    WHEN gated_update runs with them held,
+    THEN it is the Schmidt consider update (zero gain for every held state, the Joseph form for
+    the covariance, valid for any gain), the held values and their covariance block are
+    unchanged, and P stays positive definite."""
+    held = sorted({hold, *more} - {-1})
+    mask = sum(1 << i for i in more)
+    rng = np.random.default_rng(70 + hold + mask % 7)
     for m in (1, 3, 4):
         P = random_spd(rng, 15, SCALE)
         H = rng.normal(size=(m, 15)) / SCALE[None, :] * rng.uniform(0, 1, size=(m, 15))
@@ -449,7 +454,7 @@ def test_gated_update_with_a_held_state_is_the_schmidt_consider_update(hold: int
         S = H @ P @ H.T + R
         z = rng.multivariate_normal(np.zeros(m), S)
         K = P @ H.T @ np.linalg.inv(S)
-        K[hold, :] = 0.0
+        K[held, :] = 0.0
         ikh = np.eye(15) - K @ H
         x_want = x + K @ (z - H @ x)
         P_want = ikh @ P @ ikh.T + K @ R @ K.T
@@ -457,12 +462,13 @@ def test_gated_update_with_a_held_state_is_the_schmidt_consider_update(hold: int
         H4, z4, R4 = np.zeros((4, 15)), np.zeros(4), np.eye(4)
         H4[:m], z4[:m], R4[:m, :m] = H, z, R
         gated_update(x2, P2, H4, z4, R4, m, 0.0, np.zeros((4, 4)), np.zeros((4, 4)),
-                     np.zeros(15), np.zeros(4), hold)
+                     np.zeros(15), np.zeros(4), hold, mask)
         d = 1.0 / SCALE
         np.testing.assert_allclose(x2 * d, x_want * d, rtol=0, atol=1e-9)
         np.testing.assert_allclose(P2 * np.outer(d, d), P_want * np.outer(d, d), rtol=0,
                                    atol=1e-9)
-        assert x2[hold] == x[hold] and P2[hold, hold] == P[hold, hold]
+        assert np.array_equal(x2[held], x[held])
+        assert np.array_equal(P2[np.ix_(held, held)], P[np.ix_(held, held)])
         assert np.all(np.linalg.eigvalsh(P2) > 0.0)
 
 

@@ -280,16 +280,18 @@ class Estimator:
             r[kind, INNOV_NIS] = -nis
             r[kind, INNOV_FLAG] = REJECTED
 
-    def fuse_block(self, m: int, chi2_gate: float, name: str, hold: int = -1) -> float:
+    def fuse_block(self, m: int, chi2_gate: float, name: str, hold: int = -1,
+                   hold_mask: int = 0) -> float:
         """Apply the measurement block already written to H, z, R (first m rows) with a gate.
 
         For aids: fill ``self.meas_H`` (4, 15), ``self.meas_z`` (4,), ``self.meas_R``
         (4, 4) for the present nominal state, then call this.  ``chi2_gate`` is ignored when
-        ``[filter] robust = "none"``; ``hold``: a consider-state index (-1: none).  Counts
+        ``[filter] robust = "none"``; ``hold``: a consider-state index (-1: none),
+        ``hold_mask``: further consider states, bit i for state i (0: none).  Counts
         ``<name>_accepted`` / ``_rejected`` / ``_singular`` and returns the NIS (negative
         -NIS if gated out, -inf if the innovation covariance was singular).
         """
-        nis = st.update(self._buf, m, chi2_gate if self._gating else 0.0, hold)
+        nis = st.update(self._buf, m, chi2_gate if self._gating else 0.0, hold, hold_mask)
         if nis >= 0.0:
             st.inject(self._buf)
             self.counters[name + "_accepted"] += 1

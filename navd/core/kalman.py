@@ -69,12 +69,14 @@ def propagate_cov(P: Arr, F: Arr, q: Arr, T: float, A: Arr, B: Arr) -> None:
 
 @jit
 def gated_update(x: Arr, P: Arr, H: Arr, z: Arr, R: Arr, m: int, gate: float,
-                 S: Arr, L: Arr, ph: Arr, w: Arr, hold: int = -1) -> float:
+                 S: Arr, L: Arr, ph: Arr, w: Arr, hold: int = -1,
+                 hold_mask: int = 0) -> float:
     """Gate and apply a measurement block of size m in place.
 
     ``hold`` (an index, -1 for none) makes that state a Schmidt "consider" state: its
     estimate and variance stay as they are (zero gain) while its correlations with the
     others update exactly, so P remains the true covariance of the (suboptimal) estimate.
+    ``hold_mask`` (bit i: state i) makes further states consider states the same way.
 
     Args:
         x: error state (15,), updated.
@@ -85,6 +87,7 @@ def gated_update(x: Arr, P: Arr, H: Arr, z: Arr, R: Arr, m: int, gate: float,
         gate: chi-square threshold for m degrees of freedom (<= 0 disables the gate).
         S, L: (4, 4) scratch.  ph: (15,) scratch.  w: (4,) scratch.
         hold: index of a consider state, or -1.
+        hold_mask: bit mask of further consider states (0: none).
     Returns:
         The normalised innovation squared; negative (-NIS) when the gate rejected it, and
         -inf when S was not positive definite (nothing applied).
@@ -148,10 +151,12 @@ def gated_update(x: Arr, P: Arr, H: Arr, z: Arr, R: Arr, m: int, gate: float,
             for k in range(a):
                 v -= L[a, k] * H[k, j]
             H[a, j] = v / L[a, a]
-    # With K = U^T L^-1 and a zero gain row for the held state h, the Joseph form reduces
-    # to the usual P -= U^T U everywhere except P[h, h], which keeps its value.
+    # With K = U^T L^-1 and zero gain rows for the held states C, the Joseph form reduces
+    # to the usual P -= U^T U everywhere except the block P[C, C], which keeps its value.
+    if hold >= 0:
+        hold_mask |= 1 << hold
     for i in range(n):
-        if i == hold:
+        if (hold_mask >> i) & 1:
             continue
         s = 0.0
         for a in range(m):
@@ -159,7 +164,7 @@ def gated_update(x: Arr, P: Arr, H: Arr, z: Arr, R: Arr, m: int, gate: float,
         x[i] += s
     for i in range(n):
         for j in range(i, n):
-            if i == hold and j == hold:
+            if (hold_mask >> i) & 1 and (hold_mask >> j) & 1:
                 continue
             s = 0.0
             for a in range(m):

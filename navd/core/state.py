@@ -145,13 +145,13 @@ def history_restore(buf: Arr) -> None:
 
 
 @jit
-def update(buf: Arr, m: int, gate: float, hold: int) -> float:
+def update(buf: Arr, m: int, gate: float, hold: int, hold_mask: int = 0) -> float:
     """:func:`navd.core.kalman.gated_update` of the block in H, z, R (first m rows)."""
     return kalman.gated_update(
         buf[X:X + 15], buf[P:P + 225].reshape((15, 15)), buf[H:H + 60].reshape((4, 15)),
         buf[Z:Z + 4], buf[R:R + 16].reshape((4, 4)), m, gate,
         buf[S:S + 16].reshape((4, 4)), buf[L:L + 16].reshape((4, 4)), buf[PH:PH + 15],
-        buf[W4:W4 + 4], hold)
+        buf[W4:W4 + 4], hold, hold_mask)
 
 
 @jit

@@ -33,6 +33,9 @@ if TYPE_CHECKING:
 
 _REINIT_AFTER_JUMPS = 20  # consecutive >100 km disagreements that restart navigation
 _YAW = 2  # error-state index of phi_D
+# roll/pitch tilt (0, 1), gyro bias (9-11), horizontal accelerometer bias (12, 13): what a
+# velocity innovation made by a wrong heading during an acceleration would be taken for
+_TILT_BIAS_MASK = (1 << 0) | (1 << 1) | (1 << 9) | (1 << 10) | (1 << 11) | (1 << 12) | (1 << 13)
 _GYROCOMPASS_USELESS_RAD = 5.0 * math.pi / 180.0
 
 # GNSS accuracies below these are treated as missing and replaced by config defaults
@@ -66,12 +69,14 @@ class GnssAiding:
         self.hold_enabled = (c.heading.hold_static
                               and c.imu.gyro_bias_sd > OMEGA_IE * _GYROCOMPASS_USELESS_RAD)
         self.hold = -1  # consider-state index of this epoch's updates, -1: none
+        self.hold_mask = 0  # further consider states of this epoch's updates (bit i: state i)
         self._absurd_in_row = 0
         # horizontal speed of the last fix that had one, m/s (inf: none yet)
         self.last_speed_h = math.inf
 
     def reset(self) -> None:
         self.hold = -1
+        self.hold_mask = 0
         self._absurd_in_row = 0
         self.last_speed_h = math.inf
         self.course.reset()
@@ -134,6 +139,12 @@ class GnssAiding:
         self.hold = (_YAW if has_vel_h and (self._heading_hold(est, g)
                                             or (yb is not None and yb.holds_heading(est)))
                      else -1)
+        # unknown heading while accelerating: tilt and IMU biases are considered too
+        # (YawBank.holds_tilt)
+        self.hold_mask = (_TILT_BIAS_MASK if self.hold >= 0 and yb is not None
+                          and yb.holds_tilt(est) else 0)
+        if self.hold_mask:
+            cnt["tilt_held"] += 1
         if has_vel_h:
             self.course.note_not_tried(est, g)
 
@@ -151,11 +162,13 @@ class GnssAiding:
             if swapped:
                 est.state_restore()
             est.record_innovation(INNOV_POS, 0, 3,
-                                  est.fuse_block(m, self._gate3, "pos", self.hold))
+                                  est.fuse_block(m, self._gate3, "pos", self.hold,
+                                                 self.hold_mask))
         if not has_vel_h:
             cnt["gnss_no_velocity"] += 1
         elif c.gnss.use_velocity and vel_scale > 0.0:
-            self.course.fuse_with_velocity(est, g, s_sd / math.sqrt(vel_scale), self.hold)
+            self.course.fuse_with_velocity(est, g, s_sd / math.sqrt(vel_scale), self.hold,
+                                           self.hold_mask)
         # how far this epoch's updates turned the yaw (alignment integrity without a course)
         d_yaw = math.atan2(m_nb[1, 0], m_nb[0, 0]) - yaw0
         self.course.align.note_yaw_moved((d_yaw + math.pi) % (2.0 * math.pi) - math.pi)

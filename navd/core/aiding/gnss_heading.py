@@ -219,18 +219,21 @@ class CourseHeading:
         m = st.fill_velocity(est.buf, g.vel_n, g.vel_e, vd, s_sd, sd_v)
         return m, swapped
 
-    def _velocity_alone(self, est: Estimator, g: GnssSample, s_sd: float, hold: int) -> None:
+    def _velocity_alone(self, est: Estimator, g: GnssSample, s_sd: float, hold: int,
+                        hold_mask: int = 0) -> None:
         m, swapped = self._fill_velocity(est, g, s_sd)
         if swapped:
             est.state_restore()
-        est.record_innovation(INNOV_VEL, 0, 3, est.fuse_block(m, self._gate3, "vel", hold))
+        est.record_innovation(INNOV_VEL, 0, 3,
+                              est.fuse_block(m, self._gate3, "vel", hold, hold_mask))
 
     def fuse_with_velocity(self, est: Estimator, g: GnssSample, s_sd: float,
-                           hold: int) -> None:
+                           hold: int, hold_mask: int = 0) -> None:
         """The GNSS velocity update, with the course row joined when :meth:`usable`.
 
         ``s_sd``: per-axis horizontal velocity sigma, m/s; ``hold``: consider-state index
-        for the velocity-alone update (-1: none).
+        for the velocity-alone update (-1: none); ``hold_mask``: further consider states
+        (bit i: state i).
         """
         cnt = est.counters
         H, z, P = est.meas_H, est.meas_z, est.P
@@ -253,7 +256,7 @@ class CourseHeading:
             if swapped:
                 est.state_restore()
             est.record_innovation(INNOV_VEL, 0, 3,
-                                  est.fuse_block(m, self._gate3, "vel", hold))
+                                  est.fuse_block(m, self._gate3, "vel", hold, hold_mask))
             self.check_observed(est)
             al.check_observed(est, g.t_us)
             return
@@ -296,12 +299,12 @@ class CourseHeading:
                 return
             # the joint block failed: fall back to velocity alone
             rec[INNOV_FLAG] = REJECTED if nis != -math.inf else SINGULAR
-            self._velocity_alone(est, g, s_sd, hold)
+            self._velocity_alone(est, g, s_sd, hold, hold_mask)
             return
         rec[INNOV_FLAG] = REJECTED
         cnt["course_rejected"] += 1
         self.rejects += 1
-        self._velocity_alone(est, g, s_sd, hold)
+        self._velocity_alone(est, g, s_sd, hold, hold_mask)
         if self.rejects >= cfg.heading.reset_after:
             # persistently inconsistent: the yaw is wrong beyond the linear model; reset it
             self.align_yaw(est, vn_c, ve_c, s_sd)

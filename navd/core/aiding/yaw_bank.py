@@ -58,6 +58,7 @@ STATE_NAMES = ("search", "trial", "aligned")
 
 _DEFAULT_VEL_ACC = 0.5  # m/s, as the GNSS aid when the receiver gives none
 _DEFAULT_H_ACC = 5.0  # m
+_G = 9.80665  # m/s^2, what a tilt error turns into horizontal specific force
 
 # scalar state (self._s)
 _STATE = 0
@@ -72,7 +73,8 @@ _LAST_AGREE_T = 8  # t_us main and bank last agreed
 _RESULT = 9  # last bank_fix result
 _ALIGNED_T = 10  # t_us of the last alignment
 _SD_V = 11  # the last fix's per-axis horizontal speed sigma (m/s)
-_NS = 12
+_HOLD_TILT = 12  # 1: this epoch's GNSS updates leave tilt and IMU biases alone (holds_tilt)
+_NS = 13
 
 
 def bank_enabled(cfg: EstimatorConfig) -> bool:
@@ -157,6 +159,19 @@ class YawBank:
         """Whether GNSS updates must leave the main yaw alone: unaligned and not in trial."""
         return self.c.hold_unaligned and not est.heading_aligned and self.state == SEARCH
 
+    def holds_tilt(self, est: Estimator) -> bool:
+        """Whether this epoch's GNSS updates must also leave tilt and the IMU biases alone
+        (consider states): the heading is held (unknown) and the velocity error it can make
+        over the interval, along the acceleration (:meth:`_heading_velocity_noise`), is at
+        least the fix's own velocity sigma.  A wrong heading's velocity error persists from
+        epoch to epoch while the turn or leg lasts; persistent is what tilt and
+        accelerometer bias look like to the filter, and process noise cannot tell it
+        otherwise.  Velocity and position still follow the fixes.  The test uses the IMU's
+        horizontal velocity change in the main frame less three tilt sigmas' worth of it
+        (g x tilt x T): a filter not yet levelled (5 deg at start, or thrown off by a bad
+        fix) must not take its own tilt error for acceleration and so never level."""
+        return bool(self._s[_HOLD_TILT] > 0.0) and self.holds_heading(est)
+
     # ------------------------------------------------------------------ per sample
     def imu(self, est: Estimator, t_us: int, dt: float) -> None:
         yk.bank_imu(self.buf, est.buf, float(t_us), dt)
@@ -171,11 +186,50 @@ class YawBank:
               else _DEFAULT_VEL_ACC)
         sd = max(sd, self.cfg.gnss.min_vel_sd)
         self._s[_SD_V] = sd
+        self._s[_HOLD_TILT] = 0.0
         res = yk.bank_fix(self.buf, est.buf, self._par, float(g.t_us),
                           0.5 * est.imu_dt_us + 1.0, g.vel_n, g.vel_e, sd)
         self._s[_RESULT] = res
         if res == yk.NOT_KEPT:
             est.counters["yaw_bank_fix_not_kept"] += 1
+        elif res == yk.PREDICTED or res == yk.WEIGHTED:
+            self._heading_velocity_noise(est)
+
+    def _heading_velocity_noise(self, est: Estimator) -> None:
+        """What the main filter's linear yaw column leaves out of its velocity covariance.
+
+        A heading error psi turns the interval's horizontal velocity change dv (main frame)
+        into the velocity error (Rz(psi) - I) dv.  The filter's F knows only its first-order
+        part, psi x dv, across dv; the rest lies along dv, (cos psi - 1) |dv|, with
+        c = E[(cos psi - 1)^2] = 3/2 - 2 exp(-s^2/2) + exp(-2 s^2)/2 for psi ~ N(0, s^2)
+        (7e-4 at s = 10 deg, so nothing once the heading is known; 0.92 at s = 90 deg).
+        Without it, an unknown heading's velocity error along an acceleration has nowhere to
+        go but tilt and the accelerometer bias: a fixed-wing's first turn at 6 m/s^2 with
+        the heading 128 deg off put 3 deg into its roll (seed 7 of fixed_wing_wind, roll
+        then 3.6 sigma off), a multirotor's first leg 1.3 deg into its pitch (seed 47 of
+        multirotor_manoeuvre; docs/results.md, issue 15).  Added to P before the main
+        filter's update of the epoch, as process noise along dv.  Where the part of dv that
+        three tilt sigmas cannot explain (a tilt error is no acceleration) can make a
+        velocity error as large as the fix's sigma, the epoch's updates also leave tilt and
+        the IMU biases alone (:meth:`holds_tilt`)."""
+        var = float(est.P[2, 2])
+        c = 1.5 - 2.0 * math.exp(-0.5 * var) + 0.5 * math.exp(-2.0 * var)
+        if c <= 1e-9:
+            return
+        b = self.buf
+        t = float(b[yk.H_DT])
+        dn = float(b[yk.H_ACCN]) * t
+        de = float(b[yk.H_ACCE]) * t
+        dv = math.hypot(dn, de)
+        # the part of dv that three tilt sigmas cannot explain decides the hold
+        eff = dv - 3.0 * _G * t * math.sqrt(max(float(est.P[0, 0]), float(est.P[1, 1])))
+        if eff > 0.0 and self.holds_heading(est) and c * eff * eff >= self._s[_SD_V] ** 2:
+            self._s[_HOLD_TILT] = 1.0
+        P = est.P
+        P[3, 3] += c * dn * dn
+        P[3, 4] += c * dn * de
+        P[4, 3] += c * dn * de
+        P[4, 4] += c * de * de
 
     def main_turned(self, d: float) -> None:
         """The main filter turned its yaw by ``d`` rad (an update or reset)."""
