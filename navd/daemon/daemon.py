@@ -79,7 +79,8 @@ _log = logging.getLogger("navd")
 _INFO_COUNTERS = frozenset({"imu", "gnss", "nav_start", "heading_aligned_from_course",
                             "heading_yaw_from_course", "heading_yaw_observable",
                             "heading_aligned_by_observability", "gnss_delayed", "pol_delayed",
-                            "gnss_no_velocity", "dov_off_grid", "heading_held"})
+                            "gnss_no_velocity", "dov_off_grid", "heading_held",
+                            "yaw_bank_tilt_held"})
 
 
 _CLOCK_WORDS = {

@@ -144,7 +144,7 @@ class GnssAiding:
         self.hold_mask = (_TILT_BIAS_MASK if self.hold >= 0 and yb is not None
                           and yb.holds_tilt(est) else 0)
         if self.hold_mask:
-            cnt["tilt_held"] += 1
+            cnt["yaw_bank_tilt_held"] += 1
         if has_vel_h:
             self.course.note_not_tried(est, g)
 

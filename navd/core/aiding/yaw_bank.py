@@ -293,14 +293,20 @@ class YawBank:
         # aligned: watch for a main heading that left the bank
         if abs(off) <= 3.0 * comb:
             s[_LAST_AGREE_T] = t
-        # a trusted bank more than 2 sigma (of both) away: the heading may be off by more
-        # than its sigma says; it is not called aligned until the two agree again (within
-        # 1.5 sigma) or the bank resets it (3 sigma for agree_time, below)
-        if trusted and abs(off) > max(2.0 * comb, c.agree):
+        # a trusted bank more than 2 sigma (of both) away, or any bank more than 3: the
+        # heading may be off by more than its sigma says; it is not called aligned until a
+        # trusted bank agrees again (within 1.5 sigma) or resets it (3 sigma for agree_time,
+        # below).  An untrusted bank counts too: its sigma (the members' spread included)
+        # is honest, and hovering it keeps following the main yaw's drift with its rate
+        # state while its sigma grows (quad123: the main yaw drifted ~1 deg/s for 300 s
+        # with a 6-8 deg sigma, flagged aligned, while the bank, at 10-50 deg sigma, moved
+        # away from it; docs/results.md, issue 15).  Agreeing again needs a trusted bank: a
+        # wide one agrees with anything.
+        if (trusted and abs(off) > max(2.0 * comb, c.agree)) or abs(off) > 3.0 * comb:
             if est.heading_aligned:
                 est.heading_aligned = False
                 est.counters["yaw_bank_suspect"] += 1
-        elif not est.heading_aligned and abs(off) <= 1.5 * comb:
+        elif not est.heading_aligned and trusted and abs(off) <= 1.5 * comb:
             est.heading_aligned = True
         if trusted and abs(off) > max(3.0 * comb, c.agree):
             if s[_DIS_T0] < 0.0:
