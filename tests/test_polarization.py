@@ -408,9 +408,15 @@ def _delayed(samples: Any, delay_us: int) -> Any:
 def _turning_heading_rms(run: Any, delay_us: int, at_arrival: bool = False) -> tuple[float,
                                                                                       Estimator]:
     yaw0 = math.degrees(float(run.truth_euler[0, 2])) + 3.0
+    # The filter is told the simulated IMU's grade (car480's seed-001 MEMS has the industrial
+    # preset's 12 deg/h and 5 mg): this test is about when a reading is linearised.  With the
+    # consumer priors the horizontal gyro bias of this noisy accelerometer (0.3 m/s/sqrt(s))
+    # takes minutes to learn, and the tilt, with the heading the polarization row draws from
+    # it, still wanders by ~0.2 deg RMS over 120-240 s (0.10-0.25 over seeds 1-8, either way
+    # of 0.15; docs/results.md, issue 14).
     cfg = EstimatorConfig.from_dict(load_config(None, [
-        "filter.mode=traditional", "init.heading_source=config", f"init.heading_deg={yaw0}",
-        "init.heading_sd_deg=5"]))
+        "imu.grade=industrial", "filter.mode=traditional", "init.heading_source=config",
+        f"init.heading_deg={yaw0}", "init.heading_sd_deg=5"]))
     est = Estimator(cfg, pol=_aid(MOUNT0))
     if at_arrival:  # what navd did before: linearise about the state at arrival
         est.state_at = lambda t_us: False  # type: ignore[method-assign]

@@ -48,6 +48,7 @@ from navd.core.aiding.gyro_rest import GyroRest, rest_push
 from navd.core.aiding.yaw_bank import YawBank, bank_enabled
 from navd.core.aiding.yaw_bank_kernels import bank_imu, main_yaw, wrap
 from navd.core.earth import geodetic_to_ecef, radii
+from navd.core.level import level_cov
 from navd.core.output import attitude_outputs
 from navd.core.rotation import euler_to_mat_into
 from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample, Sample
@@ -462,25 +463,12 @@ class Estimator:
                                                                    / 180.0)
         if not self._level_static:
             self.counters["level_not_static"] += 1
-        P[0, 0] = P[1, 1] = tilt_sd**2
-        P[2, 2] = (math.pi / 2) ** 2
-        if yaw_known:
-            # The heading given is a ZYX yaw, the azimuth of the nose; with the nose pitched
-            # by theta, a tilt error phi_h about the nose's horizontal direction h moves that
-            # azimuth by tan(theta) phi_h, so phi_D = -d_yaw - tan(theta) phi_h: its variance
-            # grows by tan^2 * tilt^2 and it correlates with the tilt (the Schur complement
-            # stays heading_sd^2, so P stays positive).  Near 90 deg pitch the nose has no
-            # azimuth: past a quarter turn of doubt, the heading is simply unknown.
-            tp = math.tan(pitch)
-            var_d = c.init.heading_sd**2 + (tp * tilt_sd) ** 2
-            if var_d < P[2, 2]:
-                P[2, 2] = var_d
-                P[0, 2] = P[2, 0] = -tp * tilt_sd**2 * math.cos(yaw)
-                P[1, 2] = P[2, 1] = -tp * tilt_sd**2 * math.sin(yaw)
+        heading_sd = c.init.heading_sd if yaw_known else math.inf
+        level_cov(P, self.mat_nb, pitch, yaw, tilt_sd, heading_sd, c.imu.accel_bias_sd,
+                  math.sqrt(fx * fx + fy * fy + fz * fz))
         P[3, 3] = P[4, 4] = P[5, 5] = c.init.vel_sd**2
         self._set_pos_var(c.init.pos_sd)
         P[9, 9] = P[10, 10] = P[11, 11] = c.imu.gyro_bias_sd**2
-        P[12, 12] = P[13, 13] = P[14, 14] = c.imu.accel_bias_sd**2
         self._stage = _NAV
         self.counters["nav_start"] += 1
         if self.yaw_bank is not None:
