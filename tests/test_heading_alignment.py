@@ -35,15 +35,18 @@ def test_low_speed_noisy_accelerometer_never_flags_a_wrong_heading() -> None:
     THEN the yaw does go more than 40 deg wrong at times (the case is hard: seeds 4 and 10;
     seed 9 stays within 35 deg since the lock-out resets come one fix interval earlier,
     where it went 57 deg wrong before) but no aligned instant is more than 90 deg off, and
-    the yaw is reset to the course when the checks disagree."""
+    on the hard seeds the yaw is reset to the course when the checks disagree.  (Seed 9,
+    since P0 correlates tilt and accelerometer bias (issue 14), needs 3 velocity resets
+    instead of 39, stays within 10 deg while aligned and gives the checks nothing to
+    disagree about.)"""
     for seed in (4, 9, 10):
         r = _slow_noisy(seed)
         err = np.abs(r.err_deg[:, 2])
         if seed != 9:
             assert err.max() > 40.0
+            assert r.counters.get("heading_reset_inconsistent", 0) >= 1
         assert r.aligned.any()
         assert err[r.aligned].max() < 90.0, seed
-        assert r.counters.get("heading_reset_inconsistent", 0) >= 1
 
 
 def test_one_fast_course_at_start_does_not_flag_the_heading() -> None:

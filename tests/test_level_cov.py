@@ -13,7 +13,7 @@ import numpy as np
 
 from navd.config import EstimatorConfig, load_config
 from navd.core.estimator import Estimator
-from navd.core.level import level_cov
+from navd.core.level import level_cov, relevel_cov
 from navd.core.rotation import euler_to_mat, log_so3
 from navd.types import FixType, GnssSample, ImuSample
 from navd.units import DEG
@@ -85,3 +85,33 @@ def test_unknown_heading_keeps_the_tilt_variance_without_a_direction() -> None:
     assert abs(p[0, 1]) < 1e-18 and np.all(p[0:3, 12:15] == 0.0) and p[2, 2] == (math.pi / 2) ** 2
     np.testing.assert_allclose(p[12:15, 12:15], 0.09 * np.eye(3))
     assert p[3, 4] == 7.0 and p[0, 3] == 0.0
+
+
+def test_relevel_at_rest_gives_the_tilt_the_residual_bias_and_its_correlations() -> None:
+    """GIVEN a random full P and a re-level from the mean specific force less the estimated
+    accelerometer bias (the tilt error becomes eps + J dba, the old tilt forgotten),
+    WHEN relevel_cov updates P,
+    THEN P equals T P T^T + tilt_sd^2 on phi_N, phi_E, T the identity with the tilt rows
+    replaced by J times the accelerometer-bias rows (matrix form, computed independently);
+    with the heading unknown, the same variances and no tilt correlations."""
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(15, 15)) * np.r_[np.full(3, 0.02), np.ones(9), np.full(3, 0.1)]
+    p = a @ a.T
+    c = euler_to_mat(4 * DEG, -12 * DEG, 130 * DEG)
+    tilt_sd, g = 0.01, 9.8
+    t = np.eye(15)
+    t[0] = 0.0
+    t[1] = 0.0
+    t[0, 12:15] = c[1] / g
+    t[1, 12:15] = -c[0] / g
+    want = t @ p @ t.T
+    want[0, 0] += tilt_sd**2
+    want[1, 1] += tilt_sd**2
+    got = p.copy()
+    relevel_cov(got, c, tilt_sd, g, True)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-18)
+    assert np.all(np.linalg.eigvalsh(got) > 0.0)
+    lost = p.copy()
+    relevel_cov(lost, c, tilt_sd, g, False)
+    np.testing.assert_allclose(lost[:2, :2], want[:2, :2], rtol=1e-12)
+    assert np.all(lost[:2, 2:] == 0.0) and np.all(lost[2:, 2:] == p[2:, 2:])

@@ -52,6 +52,7 @@ from navd.core.level import level_cov
 from navd.core.output import attitude_outputs
 from navd.core.rotation import euler_to_mat_into
 from navd.types import FixType, GnssSample, ImuSample, NavSolution, PolSample, Sample
+from navd.units import G0
 
 if TYPE_CHECKING:
     from navd.core.aiding.polarization import PolarizationAiding
@@ -122,7 +123,7 @@ class Estimator:
         self._M = v.M
         self.mat_nb[:, :] = np.eye(3)
         v.lever_b[:] = c.gnss.lever_arm
-        self._level_sum = np.zeros(6)
+        self._level_sum = np.zeros(9)  # sums of dvel xyz, dtheta xyz, dvel^2 xyz
         self.innov = np.full((N_INNOV, INNOV_W), math.nan)
 
         q = self._q
@@ -398,6 +399,9 @@ class Estimator:
         ls[3] += s.dtheta_x
         ls[4] += s.dtheta_y
         ls[5] += s.dtheta_z
+        ls[6] += s.dvel_x * s.dvel_x
+        ls[7] += s.dvel_y * s.dvel_y
+        ls[8] += s.dvel_z * s.dvel_z
         self._level_n += 1
         self._level_t += dt
         if (self._level_t >= self.cfg.init.level_time and self._pending_fix is not None
@@ -463,9 +467,17 @@ class Estimator:
                                                                    / 180.0)
         if not self._level_static:
             self.counters["level_not_static"] += 1
+        g = max(math.sqrt(fx * fx + fy * fy + fz * fz), 0.5 * G0)
+        # The mean's own noise, from the window's scatter (never the configured noise, which
+        # may be understated): Var(sum dv) = n Var(dv) for increments of equal length, so the
+        # mean specific force sum(dv)/T has n Var(dv)/T^2 per axis.  A tilt_sd below it would
+        # claim a levelling better than the data allow (noise_x3: 5.3 deg against 2).
+        n = self._level_n
+        if n > 1:
+            var_dv = sum(max(ls[6 + i] - ls[i] * ls[i] / n, 0.0) for i in range(3)) / (3 * (n - 1))
+            tilt_sd = max(tilt_sd, math.sqrt(n * var_dv) / T / g)
         heading_sd = c.init.heading_sd if yaw_known else math.inf
-        level_cov(P, self.mat_nb, pitch, yaw, tilt_sd, heading_sd, c.imu.accel_bias_sd,
-                  math.sqrt(fx * fx + fy * fy + fz * fz))
+        level_cov(P, self.mat_nb, pitch, yaw, tilt_sd, heading_sd, c.imu.accel_bias_sd, g)
         P[3, 3] = P[4, 4] = P[5, 5] = c.init.vel_sd**2
         self._set_pos_var(c.init.pos_sd)
         P[9, 9] = P[10, 10] = P[11, 11] = c.imu.gyro_bias_sd**2

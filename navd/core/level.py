@@ -87,3 +87,44 @@ def level_cov(P: Arr, mat_nb: Arr, pitch: float, yaw: float, tilt_sd: float,
         for b, j in enumerate(_X):
             P[i, j] = Pw[a, b]
 
+
+
+def relevel_cov(P: Arr, mat_nb: Arr, tilt_sd: float, g: float, heading_known: bool) -> None:
+    """P after roll and pitch were levelled again, from a still window's mean specific force
+    less the *estimated* accelerometer bias (``gnss_recovery``'s re-level at rest).
+
+    The new tilt error is, as at the start, the levelling's own error ε plus the tilt that
+    hides the residual bias, ``φ_h = ε + J δb_a`` (J as in :func:`level_cov`); the old tilt is
+    forgotten.  So with T the identity whose φ_N, φ_E rows are replaced by J applied to the δb_a
+    rows, ``P <- T P Tᵀ + tilt_sd² on φ_N, φ_E``: the tilt inherits the bias's variance and its
+    correlations with every other state.  With the heading unknown (a re-level that moved the
+    tilt far) the NED direction of the bias is unknown too: the tilt keeps J P_bb Jᵀ's variance
+    but no correlations.  No allocation beyond scalars.
+
+    Args:
+        P: (15, 15) covariance, updated in place.
+        mat_nb: the re-levelled C_b^n (3, 3).
+        tilt_sd: 1-sigma of the levelling's own error, rad.
+        g: gravity, m/s².
+        heading_known: False when the heading is (now) unknown.
+    """
+    n = P.shape[0]
+    j00, j01, j02 = mat_nb[1, 0] / g, mat_nb[1, 1] / g, mat_nb[1, 2] / g
+    j10, j11, j12 = -mat_nb[0, 0] / g, -mat_nb[0, 1] / g, -mat_nb[0, 2] / g
+    # new rows 0, 1 against every state other than the tilt: J P[12:15, k]
+    for k in range(2, n):
+        a = j00 * P[12, k] + j01 * P[13, k] + j02 * P[14, k]
+        b = j10 * P[12, k] + j11 * P[13, k] + j12 * P[14, k]
+        P[0, k] = P[k, 0] = a
+        P[1, k] = P[k, 1] = b
+    # the 2x2 tilt block: J P_bb J^T + tilt_sd^2 I (P[0:2, 12:15] now holds J P_bb)
+    p00 = P[0, 12] * j00 + P[0, 13] * j01 + P[0, 14] * j02 + tilt_sd * tilt_sd
+    p01 = P[0, 12] * j10 + P[0, 13] * j11 + P[0, 14] * j12
+    p11 = P[1, 12] * j10 + P[1, 13] * j11 + P[1, 14] * j12 + tilt_sd * tilt_sd
+    if not heading_known:
+        for k in range(2, n):
+            P[0, k] = P[k, 0] = 0.0
+            P[1, k] = P[k, 1] = 0.0
+    P[0, 0] = p00
+    P[1, 1] = p11
+    P[0, 1] = P[1, 0] = p01

@@ -35,9 +35,16 @@ Not fighting the bias estimation.  An uncalibrated gyro also makes velocity inno
 large, and inflating the white noise then only widens every sigma while the bias stays
 wrong (an earlier version of this took an uncalibrated-gyro car from 11.6 to 83.6 deg of
 tilt).  So a window counts only while the bias estimates have settled: every gyro-bias
-sigma below ``_SETTLED`` times its prior and every accelerometer-bias sigma too, and both
-estimates within the physical limits of :mod:`navd.core.aiding.gnss_recovery`.  Until then
-the bias states, not the noise, are what must move.
+sigma below ``_SETTLED`` times its prior, the specific-force error the accelerometer bias and
+the tilt make together (per NED axis, ``[f^n×] φ + C δb_a`` with gravity for f^n) below
+``_SETTLED`` times the accelerometer-bias prior sigma, and both estimates within the physical
+limits of :mod:`navd.core.aiding.gnss_recovery`.  Until then the bias states, not the noise,
+are what must move.  (The accelerometer bias's own sigma is no test: on a straight road it
+stays near its prior, honestly, since only turns tell it from tilt (core/level.py), while the
+combination that moves the velocity is known within seconds.)  The gyro side is judged in
+the same currency: the tilt the gyro-bias uncertainty can build within one window, times g,
+must be below the specific-force error's sigma.  And the first window after the biases
+settle is skipped: its innovations still carry the convergence that just ended.
 
 Counted ``q_scale_up`` / ``q_scale_down`` / ``r_scale_up`` / ``r_scale_down``; the status
 record shows both scales.  A restart keeps them (it changes neither sensor).
@@ -62,6 +69,7 @@ from navd.core.aiding.base import (
 )
 from navd.core.aiding.gnss_recovery import ACCEL_BIAS_LIMIT, GYRO_BIAS_LIMIT
 from navd.core.chi2 import chi2_quantile
+from navd.units import G0
 
 if TYPE_CHECKING:
     from navd.core.estimator import Estimator
@@ -109,6 +117,10 @@ class AdaptiveNoise:
         self._q_white = (imu.gyro_arw ** 2, imu.accel_vrw ** 2)
         self._q_bg = imu.gyro_bias_rw ** 2
         self._gyro_sd2 = imu.gyro_bias_sd ** 2
+        self._t_prev = -1  # IMU time of the previous epoch, us
+        self._fix_dt = 0.1  # the GNSS epoch interval, s (a window is _WINDOW of them)
+        self._dwell = 0
+        self._ve = np.zeros(3)  # scratch: variance of the specific-force error per NED axis
         self._accel_sd2 = imu.accel_bias_sd ** 2
 
     @property
@@ -141,12 +153,12 @@ class AdaptiveNoise:
         s[_PN] = math.nan
 
     def _median_ratio(self) -> float:
-        """The window's median NIS ratio, sorted in preallocated scratch (np.median copies
-        and ndarray.sort takes a few kB: a GNSS epoch allocates nothing, even the one that
-        ends a window with a decision)."""
+        """The window's median NIS ratio, sorted in preallocated scratch (np.median copies:
+        a GNSS epoch allocates nothing, even the one that ends a window)."""
         w = self._sorted
         r = self._ratio
-        for i in range(_WINDOW):  # insertion sort, once per window
+        # insertion sort (ndarray.sort takes a few kB of scratch); once per window
+        for i in range(_WINDOW):
             x = float(r[i])
             j = i - 1
             while j >= 0 and w[j] > x:
@@ -160,9 +172,41 @@ class AdaptiveNoise:
         P = est.P
         s = _SETTLED * _SETTLED
         for k in range(3):
-            if (P[9 + k, 9 + k] > s * self._gyro_sd2 or P[12 + k, 12 + k] > s * self._accel_sd2
-                    or abs(est.bias_g[k]) > GYRO_BIAS_LIMIT
+            if (P[9 + k, 9 + k] > s * self._gyro_sd2 or abs(est.bias_g[k]) > GYRO_BIAS_LIMIT
                     or abs(est.bias_a[k]) > ACCEL_BIAS_LIMIT):
+                return False
+        # The accelerometer side: what the velocity innovations see is the specific-force
+        # error e = [f^n x] phi + C dba (f^n ~ gravity), not the bias alone.  Tilt and
+        # horizontal bias are one unknown until turns separate them (P0 correlates them,
+        # core/level.py), so the bias sigma stays near its prior on a straight road while e,
+        # which drives the innovations, is known within seconds.
+        C = est.mat_nb
+        g = G0
+        ve = self._ve
+        for i in range(3):
+            # e_i = a . (phi_N, phi_E, dba_x, dba_y, dba_z)
+            a0 = -g if i == 1 else 0.0
+            a1 = g if i == 0 else 0.0
+            v = a0 * a0 * P[0, 0] + 2.0 * a0 * a1 * P[0, 1] + a1 * a1 * P[1, 1]
+            for j in range(3):
+                cj = C[i, j]
+                v += 2.0 * cj * (a0 * P[0, 12 + j] + a1 * P[1, 12 + j])
+                for k in range(3):
+                    v += cj * C[i, k] * P[12 + j, 12 + k]
+            if v > s * self._accel_sd2:
+                return False
+            ve[i] = v
+        # The gyro side, in the same currency: while the unknown gyro bias can turn the tilt
+        # (phi' = -C dbg) by more within one test window than the specific-force error it
+        # shows up in is known, large correlated innovations are that bias being learned,
+        # not understated noise.  (phi_N enters e_E, phi_E enters e_N.)
+        tw2 = (_WINDOW * self._fix_dt * g) ** 2
+        for i in range(2):
+            v = 0.0
+            for j in range(3):
+                for k in range(3):
+                    v += C[i, j] * C[i, k] * P[9 + j, 9 + k]
+            if v * tw2 > ve[1 - i]:
                 return False
         return True
 
@@ -175,8 +219,15 @@ class AdaptiveNoise:
         nis = r[INNOV_VEL, INNOV_NIS]
         if (flag != ACCEPTED and flag != REJECTED) or not math.isfinite(nis):
             return
+        if self._t_prev >= 0:
+            self._fix_dt = min(max((est.t_us - self._t_prev) * 1e-6, 0.01), 1.0)
+        self._t_prev = est.t_us
         if not self._settled(est):
             self._clear()
+            self._dwell = 0
+            return
+        if self._dwell < _WINDOW:  # the first window after settling: skipped (module doc)
+            self._dwell += 1
             return
         m = (3 if vel_d_reported else 2) + (1 if r[INNOV_COURSE, INNOV_FLAG] == ACCEPTED
                                             and flag == ACCEPTED else 0)

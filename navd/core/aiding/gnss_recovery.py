@@ -60,6 +60,7 @@ from navd.config import EstimatorConfig
 from navd.core import state as st
 from navd.core.aiding.base import ACCEPTED, INNOV_FLAG, INNOV_POS, INNOV_VEL, NOT_TRIED
 from navd.core.earth import gravity, radii
+from navd.core.level import relevel_cov
 from navd.core.rotation import euler_to_mat_into
 
 if TYPE_CHECKING:
@@ -212,11 +213,10 @@ def _relevel_at_rest(est: Estimator) -> None:
     moved = math.acos(max(-1.0, min(1.0, d0[0] * float(C[2, 0]) + d0[1] * float(C[2, 1])
                                     + d0[2] * float(C[2, 2]))))
     P = est.P
-    for k in range(2):
-        P[k, :] = 0.0
-        P[:, k] = 0.0
-        P[k, k] = c.init.tilt_sd ** 2
-    if moved > _RELEVEL_HEADING_DEG * math.pi / 180.0:
+    far = moved > _RELEVEL_HEADING_DEG * math.pi / 180.0
+    # the new tilt hides the residual of the estimated accelerometer bias (core/level.py)
+    relevel_cov(P, C, c.init.tilt_sd, g, not far)
+    if far:
         # a tilt that far off came with a yaw nobody can vouch for
         P[2, :] = 0.0
         P[:, 2] = 0.0
