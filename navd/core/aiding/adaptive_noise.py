@@ -80,6 +80,7 @@ _Z_DOWN = -2.0  # ... below which it comes back down
 _STEP = math.sqrt(2.0)  # variance factor per decision (down; the least up)
 _MAX_STEP = 4.0  # the most up per decision
 _SETTLED = 0.8  # bias sigma / prior sigma below which the biases count as settled
+_UNLATCH = 0.5  # bias variance growth (in prior variances) that says a reset widened it
 
 # persistence of the innovations (lag-1 correlation rho of a window): above _RHO_UP the
 # gyro-bias random walk is scaled up by _B_STEP, below _RHO_DOWN down by 2.  Simulated IMUs
@@ -120,6 +121,8 @@ class AdaptiveNoise:
         self._t_prev = -1  # IMU time of the previous epoch, us
         self._fix_dt = 0.1  # the GNSS epoch interval, s (a window is _WINDOW of them)
         self._dwell = 0
+        self._known = False  # the biases counted as settled once (latch, _settled)
+        self._pv = np.zeros(6)  # the bias variances since then, least seen
         self._ve = np.zeros(3)  # scratch: variance of the specific-force error per NED axis
         self._accel_sd2 = imu.accel_bias_sd ** 2
 
@@ -146,6 +149,8 @@ class AdaptiveNoise:
     def reset(self) -> None:
         """Start the window over; the scales are kept (a restart changes neither sensor)."""
         self._clear()
+        self._known = False
+        self._dwell = 0
 
     def _clear(self) -> None:
         s = self._s
@@ -179,7 +184,23 @@ class AdaptiveNoise:
         # error e = [f^n x] phi + C dba (f^n ~ gravity), not the bias alone.  Tilt and
         # horizontal bias are one unknown until turns separate them (P0 correlates them,
         # core/level.py), so the bias sigma stays near its prior on a straight road while e,
-        # which drives the innovations, is known within seconds.
+        # which drives the innovations, is known within seconds.  The gyro side in the same
+        # currency: the tilt the gyro-bias sigma can build within one window (x g) must be
+        # below e's sigma, else large correlated innovations are that bias being learned.
+        # Once both held the biases count as settled (a latch): the sigmas grow with the
+        # very noise scales this adapts, which must not switch the adaptation off.  A reset
+        # that widens a bias again (lock-out, bias limits: half its prior variance or more
+        # at once, where the random walks add a tiny fraction) or a restart clears it.
+        pv = self._pv
+        if self._known:
+            for k in range(6):
+                v = P[9 + k, 9 + k]
+                if v > pv[k] + _UNLATCH * (self._gyro_sd2 if k < 3 else self._accel_sd2):
+                    self._known = False
+                    return False
+                if v < pv[k]:
+                    pv[k] = v
+            return True
         C = est.mat_nb
         g = G0
         ve = self._ve
@@ -196,10 +217,7 @@ class AdaptiveNoise:
             if v > s * self._accel_sd2:
                 return False
             ve[i] = v
-        # The gyro side, in the same currency: while the unknown gyro bias can turn the tilt
-        # (phi' = -C dbg) by more within one test window than the specific-force error it
-        # shows up in is known, large correlated innovations are that bias being learned,
-        # not understated noise.  (phi_N enters e_E, phi_E enters e_N.)
+        # phi_N' = -(C dbg)_N shows in e_E, phi_E' in e_N
         tw2 = (_WINDOW * self._fix_dt * g) ** 2
         for i in range(2):
             v = 0.0
@@ -208,6 +226,9 @@ class AdaptiveNoise:
                     v += C[i, j] * C[i, k] * P[9 + j, 9 + k]
             if v * tw2 > ve[1 - i]:
                 return False
+        self._known = True
+        for k in range(6):
+            pv[k] = P[9 + k, 9 + k]
         return True
 
     def after_epoch(self, est: Estimator, vel_d_reported: bool) -> None:
