@@ -28,25 +28,29 @@ def _slow_noisy(seed: int) -> Any:
 
 
 def test_low_speed_noisy_accelerometer_never_flags_a_wrong_heading() -> None:
-    """GIVEN the issue's false-alignment setting (2-3.4 m/s, noisy accelerometers), seeds 4
-    and 9, where the heading was flagged aligned > 90 deg wrong for 19-25 s before, and
-    seed 10 (its yaw goes > 100 deg wrong),
-    WHEN run with the default config,
-    THEN the yaw does go more than 40 deg wrong at times (the case is hard: seeds 4 and 10;
-    seed 9 stays within 35 deg since the lock-out resets come one fix interval earlier,
-    where it went 57 deg wrong before) but no aligned instant is more than 90 deg off, and
-    on the hard seeds the yaw is reset to the course when the checks disagree.  (Seed 9,
-    since P0 correlates tilt and accelerometer bias (issue 14), needs 3 velocity resets
-    instead of 39, stays within 10 deg while aligned and gives the checks nothing to
-    disagree about.)"""
-    for seed in (4, 9, 10):
+    """GIVEN the issue's false-alignment setting (2-3.4 m/s, noisy accelerometers), seeds
+    1-12 (before alignment integrity, seeds 2, 4 and 9 had the heading flagged aligned
+    > 90 deg wrong for 3-25 s),
+    WHEN each is run with the default config,
+    THEN the case is hard (on some seeds an aligned instant is more than 40 deg off), yet no
+    aligned instant on any seed is more than 90 deg off, and every seed whose aligned
+    heading went beyond 40 deg had its yaw reset to the course when the checks disagreed.
+
+    Twelve seeds rather than a few picked ones: which seeds go wrong moves with every
+    estimator change (the P0 tilt/accelerometer-bias correlation, issue 14, made the
+    earlier picks 4 and 9 stay within 20 deg).  Aligned errors of 40-55 deg remain on 4 of
+    the 12 seeds (docs/results.md): not yet the issue's target."""
+    hard = 0
+    for seed in range(1, 13):
         r = _slow_noisy(seed)
         err = np.abs(r.err_deg[:, 2])
-        if seed != 9:
-            assert err.max() > 40.0
-            assert r.counters.get("heading_reset_inconsistent", 0) >= 1
-        assert r.aligned.any()
-        assert err[r.aligned].max() < 90.0, seed
+        assert r.aligned.any(), seed
+        worst = float(err[r.aligned].max())
+        assert worst < 90.0, seed
+        if worst > 40.0:
+            hard += 1
+            assert r.counters.get("heading_reset_inconsistent", 0) >= 1, seed
+    assert hard >= 1
 
 
 def test_one_fast_course_at_start_does_not_flag_the_heading() -> None:
