@@ -88,6 +88,45 @@ def test_report_renders_and_every_png_exists(replayed: Path,
     assert "course_accepted" in html and "p99" in html
 
 
+def test_report_shows_the_yaw_bank_when_it_runs(src: Source, replayed: Path,
+                                                tmp_path: Path) -> None:
+    """GIVEN the simulated X8 log replayed with the yaw bank forced on (issue 15), and the
+    fixture's replay with the fixed_wing profile's default (bank off),
+    WHEN the aiding files are read and reports built from them,
+    THEN the bank's aiding columns carry its state (search/trial/aligned), a finite yaw,
+    sigma and weight, and cumulative trial counts; the page and summary.json show the bank's
+    state at the end, its first alignment and its trials; with the bank off the columns say
+    "off" and the page and summary have no bank rows."""
+    d = tmp_path
+    write_x8(d / "x8", src)
+    assert replay_main(["--log", str(d / "x8"), "--out", str(d / "sol.csv"), "--aiding-out",
+                        str(d / "aid.csv"), "--set", "imu.grade=industrial", "--set",
+                        "yaw_bank.enabled=on", "--quiet"]) == 0
+    lines = (d / "aid.csv").read_text().splitlines()
+    head = lines[0].split(",")
+    rows = [dict(zip(head, ln.split(","), strict=True)) for ln in lines[1:]]
+    assert len(rows) > 50
+    assert {r["yaw_bank_state"] for r in rows} <= {"search", "trial", "aligned"}
+    last = rows[-1]
+    assert all(math.isfinite(float(last[k])) for k in ("yaw_bank_yaw_deg", "yaw_bank_sd_deg",
+                                                       "yaw_bank_weight_max"))
+    assert 0.0 < float(last["yaw_bank_weight_max"]) <= 1.0
+    trials = [int(r["yaw_bank_trials"]) for r in rows]
+    assert trials == sorted(trials)
+    s = build_report(d / "sol.csv", d / "r", aiding=d / "aid.csv")
+    bank = s["yaw_bank"]
+    assert bank["yaw bank state at the end"] == last["yaw_bank_state"]
+    assert bank["yaw bank trials"] == last["yaw_bank_trials"]
+    assert "yaw bank first aligned at" in bank
+    assert "yaw bank state at the end" in (d / "r" / "index.html").read_text()
+    off = [ln.split(",") for ln in (replayed / "aid.csv").read_text().splitlines()]
+    k = off[0].index("yaw_bank_state")
+    assert {r[k] for r in off[1:]} == {"off"}
+    s_off = build_report(replayed / "sol.csv", d / "r_off", aiding=replayed / "aid.csv")
+    assert "yaw_bank" not in s_off
+    assert "yaw bank" not in (d / "r_off" / "index.html").read_text()
+
+
 def test_report_with_a_log_as_reference_and_no_aiding(src: Source, replayed: Path,
                                                       tmp_path: Path) -> None:
     """GIVEN the replayed solution, a ULog of the same run as reference and no aiding file,

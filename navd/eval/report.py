@@ -105,7 +105,10 @@ def render_html(ev: Evaluation, figs: list[tuple[str, str]], title: str,
         for name, count in last.items():
             parts.append(f"<tr><th>{e(name)}</th><td>{count}</td></tr>")
         parts.append(f"<tr><th>course update at the end</th><td style='text-align:left'>"
-                     f"{e(status)}</td></tr></table>")
+                     f"{e(status)}</td></tr>")
+        for name, val in yaw_bank_summary(aid).items():
+            parts.append(f"<tr><th>{e(name)}</th><td style='text-align:left'>{e(val)}</td></tr>")
+        parts.append("</table>")
     if checks:
         parts.append(
             "<h2>Consistency checks</h2><p>gyro: RMS per body axis (x, y, z) of the rotation "
@@ -162,6 +165,32 @@ def _checks(ev: Evaluation, sol: dict[str, Any], ref: RefSeries | None,
     return out
 
 
+def yaw_bank_summary(aid: dict[str, Any]) -> dict[str, str]:
+    """The heading bank's story from the aiding file (issue 15), for the page and
+    summary.json: its state at the end, when it first aligned the heading, its trials,
+    realignments and suspicions, and its last yaw, sigma and largest weight.  Empty when the
+    file has no bank columns or the bank was off."""
+    states = aid.get("yaw_bank_state")
+    if not states or all(x == "off" for x in states):
+        return {}
+    t = np.asarray(aid["t_us"], dtype=np.float64) * 1e-6
+    aligned = [i for i, x in enumerate(states) if x == "aligned"]
+    out = {"yaw bank state at the end": states[-1],
+           "yaw bank first aligned at": (f"{t[aligned[0]] - t[0]:.1f} s after the first row"
+                                         if aligned else "never")}
+    for col, name in (("yaw_bank_trials", "yaw bank trials"),
+                      ("yaw_bank_realigned", "yaw bank realignments (heading resets)"),
+                      ("yaw_bank_suspect", "yaw bank suspicions (aligned cleared)")):
+        if col in aid and len(aid[col]):
+            out[name] = str(int(aid[col][-1]))
+    if "yaw_bank_yaw_deg" in aid and len(aid["yaw_bank_yaw_deg"]):
+        out["yaw bank yaw / sigma / largest weight at the end"] = (
+            f"{_fmt(float(aid['yaw_bank_yaw_deg'][-1]))} deg / "
+            f"{_fmt(float(aid['yaw_bank_sd_deg'][-1]))} deg / "
+            f"{_fmt(float(aid['yaw_bank_weight_max'][-1]), 3)}")
+    return out
+
+
 def _heading_note(ev: Evaluation) -> str:
     """What the yaw and angle rows score, said on the page."""
     hs = ev.heading_scored
@@ -211,7 +240,7 @@ def build_report(solution: str | Path, out: str | Path, reference: str | Path | 
     aid = None
     if aiding is not None:
         aid = read_table(aiding, ("t_us", "course", "speed_mps", "course_deg"),
-                         text=("course_status", "course"), progress=progress)
+                         text=("course_status", "course", "yaw_bank_state"), progress=progress)
     t0_us = time_origin_us(sol["t_us"], *([ref.t_us] if ref is not None else []),
                            *([aid["t_us"]] if aid is not None else []))
     ev = evaluate(sol, ref, aid, segment_s, stats_from_s, max_ref_gap_s, t0_us)
@@ -250,5 +279,9 @@ def build_report(solution: str | Path, out: str | Path, reference: str | Path | 
         "checks": checks,
         "notes": notes,
     }
+    if aid is not None:
+        bank = yaw_bank_summary(aid)
+        if bank:
+            summary["yaw_bank"] = bank
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=1, allow_nan=True) + "\n")
     return summary

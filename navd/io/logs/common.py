@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, TextIO
 import numpy as np
 import numpy.typing as npt
 
+from navd.core.aiding import yaw_bank_kernels as yk
 from navd.core.aiding.base import (
     ACCEPTED,
     INNOV_COURSE,
@@ -34,6 +35,7 @@ from navd.core.aiding.base import (
     INNOV_VEL,
     REJECTED,
 )
+from navd.core.aiding.yaw_bank import STATE_NAMES
 from navd.diag import Counters, RateLimitedLog
 from navd.io.common import RateIntegrator, Rejector
 from navd.io.csv_replay import ReadReport, merge, read_gnss, read_imu
@@ -385,8 +387,26 @@ AIDING_COLS = (
     "innov_pos_n_m", "innov_pos_e_m", "innov_pos_d_m", "innov_vel_n_mps", "innov_vel_e_mps",
     "innov_vel_d_mps", "innov_course_deg", "gnss_lat_deg", "gnss_lon_deg",
     "gyro_bias_x_dph", "gyro_bias_y_dph", "gyro_bias_z_dph", "accel_bias_x_mg",
-    "accel_bias_y_mg", "accel_bias_z_mg", "yaw_sd_deg",
+    "accel_bias_y_mg", "accel_bias_z_mg", "yaw_sd_deg", "yaw_bank_state", "yaw_bank_yaw_deg",
+    "yaw_bank_sd_deg", "yaw_bank_weight_max", "yaw_bank_trials", "yaw_bank_realigned",
+    "yaw_bank_suspect",
 )
+
+
+def _bank_cells(est: Estimator) -> str:
+    """The ``yaw_bank_*`` cells of an aiding row (see :class:`AidingWriter`)."""
+    yb = est.yaw_bank
+    c = est.counters
+    counts = (f"{int(c.get('yaw_bank_trials', 0))},{int(c.get('yaw_bank_realigned', 0))},"
+              f"{int(c.get('yaw_bank_suspect', 0))}")
+    if yb is None:
+        return f"off,nan,nan,nan,{counts}"
+    b = yb.buf
+    m = est.mat_nb
+    yaw = math.atan2(float(m[1, 0]), float(m[0, 0])) + yb.offset
+    yaw = (yaw + math.pi) % (2.0 * math.pi) - math.pi
+    w = max(float(b[yk.MEM + i * yk.MW + yk.M_W]) for i in range(yb.n))
+    return (f"{STATE_NAMES[yb.state]},{yaw * R2D:.3f},{yb.sd * R2D:.3f},{w:.4f},{counts}")
 
 
 class AidingWriter:
@@ -403,7 +423,10 @@ class AidingWriter:
     ``innov_vel_d_mps`` is nan when the fix has no vertical velocity.  ``innov_course_deg``
     is wrap(yaw - course), the quantity the completed heading update uses (of the raw GNSS
     velocity when the course was not tried, from 1 m/s); biases are the estimates after
-    the update.
+    the update.  ``yaw_bank_*`` (issue 15): the heading bank's state (``search``, ``trial``,
+    ``aligned``; ``off`` without a bank: its values are then nan), its composite yaw
+    and 1-sigma, its largest member weight after the update, and the cumulative trials,
+    realignments (heading resets to the bank) and suspicions (the bank cleared "aligned").
     """
 
     def __init__(self, fh: TextIO) -> None:
@@ -441,4 +464,4 @@ class AidingWriter:
             f"{n('course_accepted')},{n('course_rejected')},{f},"
             f"{math.degrees(g.lat_rad):.9f},{math.degrees(g.lon_rad):.9f},"
             f"{bg[0]:.4f},{bg[1]:.4f},{bg[2]:.4f},{ba[0]:.4f},{ba[1]:.4f},{ba[2]:.4f},"
-            f"{sol.att_sd_rad[2] * R2D:.5f}\n")
+            f"{sol.att_sd_rad[2] * R2D:.5f},{_bank_cells(est)}\n")
