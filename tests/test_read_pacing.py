@@ -169,3 +169,52 @@ def test_paced_link_refuses_an_oversize_datagram_by_its_real_size() -> None:
     c = asyncio.run(main())
     assert c.get("oversize") == 1 and c.get("datagrams") == 3, c
     assert [s.t_us for s in got] == [1000, 2000]
+
+
+def test_a_pause_makes_the_pace_unknown_again() -> None:
+    """GIVEN a live 1 kHz stream that pauses for 1.5 s and then goes on (a benchmark
+    between its rate steps, a link that was down),
+    THEN nothing is held until the pace is measured again: the pace before the pause
+    (sensor time per host time across it) says nothing about the pace now."""
+    p = ReadPacer([20_000], max_hold_us=10_000)
+    _live(p, 401_000, 300)
+    assert p.hold_us(401_300) > 0
+    p.note(402_000, 1_902_300)
+    assert p.hold_us(1_902_300) == 0
+
+
+def test_no_hold_after_a_burst() -> None:
+    """GIVEN a paced navd udpin link,
+    WHEN one drain reads 200 datagrams (a fast sender, or navd fell behind),
+    THEN it does not ask for a hold and stays on the loop; after a drain of 3 it asks."""
+    asked: list[int] = []
+
+    async def main() -> None:
+        cfg = MavlinkInputConfig(nominal_imu_rate_hz=1000.0, relock_s=None)
+        link = await MavlinkLink.open("udpin:127.0.0.1:0", MavlinkDecoder(cfg), None)
+        t = link._udp_transport
+        assert isinstance(t, PacedUdpTransport)
+        loop = asyncio.get_running_loop()
+        loop.remove_reader(t._fd)  # this test drains by hand
+        link.set_receive_buffer(1 << 20)
+
+        def hold() -> int:
+            asked.append(1)
+            return 0
+
+        t.hold_us = hold
+        port = link.local_address[1] if link.local_address else 0
+        frames = _imu_frames(203)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for f in frames[:200]:
+                s.sendto(f, ("127.0.0.1", port))
+            t._readable()
+            assert not asked
+            for f in frames[200:]:
+                s.sendto(f, ("127.0.0.1", port))
+            t._readable()
+            assert asked == [1]
+        loop.add_reader(t._fd, t._readable)
+        link.close()
+
+    asyncio.run(main())

@@ -28,6 +28,8 @@ __all__ = ["ReadPacer"]
 
 # host time over which the sensor-time rate is measured
 _RATE_WINDOW_US = 200_000
+# IMU samples read this far apart (host time): the sender paused, measure its pace afresh
+_QUIET_US = 100_000
 # a measured sensor/host rate this close to 1 is a live sensor's: taken as exactly 1
 _LIVE_RATE_TOLERANCE = 0.05
 
@@ -67,8 +69,12 @@ class ReadPacer:
                 self._rate = 0.0
                 self.t_last = -1
             return
+        quiet = host_us - self.host_last > _QUIET_US
         self.t_last = t_us
         self.host_last = host_us
+        if quiet:  # the sender paused: its pace before says nothing about its pace now
+            self._t0 = -1
+            self._rate = 0.0
         if self._t0 < 0:
             self._t0, self._h0 = t_us, host_us
             self._lag = self._lag_prev = math.inf
