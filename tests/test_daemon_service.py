@@ -61,3 +61,21 @@ def test_systemd_analyze_verify_prints_nothing(tmp_path: Path) -> None:
     r = subprocess.run(["systemd-analyze", "verify", str(unit)], capture_output=True,
                        text=True, timeout=60)
     assert r.returncode == 0 and r.stdout == "" and r.stderr == "", r.stdout + r.stderr
+
+
+def test_sysctl_drop_in_raises_rmem_max_above_the_asked_buffer() -> None:
+    """GIVEN the shipped systemd/99-navd.conf and config/navd.toml,
+    WHEN the sysctl line and the configured receive buffer are read,
+    THEN the file sets only net.core.rmem_max, to at least the buffer navd asks for ([daemon]
+    rx_buffer_bytes; a cap
+    below it would silently shrink navd's input buffer)."""
+    import tomllib
+
+    root = Path(__file__).resolve().parent.parent
+    lines = [ln.strip() for ln in (root / "systemd" / "99-navd.conf").read_text().splitlines()
+             if ln.strip() and not ln.lstrip().startswith("#")]
+    assert len(lines) == 1
+    key, _, val = (p.strip() for p in lines[0].partition("="))
+    assert key == "net.core.rmem_max"
+    cfg = tomllib.loads((root / "config" / "navd.toml").read_text())
+    assert int(val) >= int(cfg["daemon"]["rx_buffer_bytes"])
