@@ -27,30 +27,30 @@ def _slow_noisy(seed: int) -> Any:
     return rb.score_sim(run, "ground")
 
 
-def test_low_speed_noisy_accelerometer_never_flags_a_wrong_heading() -> None:
+def test_low_speed_noisy_accelerometer_keeps_the_aligned_heading_within_its_sigma() -> None:
     """GIVEN the issue's false-alignment setting (2-3.4 m/s, noisy accelerometers), seeds
-    1-12 (before alignment integrity, seeds 2, 4 and 9 had the heading flagged aligned
-    > 90 deg wrong for 3-25 s),
+    1-12 (with course updates only from 3 m/s and the run-of-checks watch alone, 9 of the 12
+    seeds had aligned instants 13-55 deg off and beyond 3 sigma, and 10.5 % of the aligned
+    instants pooled were beyond 3 sigma: docs/results.md, "Low-speed false alignment"),
     WHEN each is run with the default config,
-    THEN the case is hard (on some seeds an aligned instant is more than 40 deg off), yet no
-    aligned instant on any seed is more than 90 deg off, and every seed whose aligned
-    heading went beyond 40 deg had its yaw reset to the course when the checks disagreed.
+    THEN every seed is flagged aligned for most of the drive (>= 90 % of instants: the flag
+    is not simply withheld), no aligned instant is a false alignment (|error| > 10 deg and
+    beyond 3 sigma), and pooled over the seeds at most 5 % of the aligned instants are
+    beyond 3 sigma.
 
     Twelve seeds rather than a few picked ones: which seeds go wrong moves with every
-    estimator change (the P0 tilt/accelerometer-bias correlation, issue 14, made the
-    earlier picks 4 and 9 stay within 20 deg).  Aligned errors of 40-55 deg remain on 4 of
-    the 12 seeds (docs/results.md): not yet the issue's target."""
-    hard = 0
+    estimator change."""
+    n_aligned = n_beyond = 0
     for seed in range(1, 13):
         r = _slow_noisy(seed)
         err = np.abs(r.err_deg[:, 2])
-        assert r.aligned.any(), seed
-        worst = float(err[r.aligned].max())
-        assert worst < 90.0, seed
-        if worst > 40.0:
-            hard += 1
-            assert r.counters.get("heading_reset_inconsistent", 0) >= 1, seed
-    assert hard >= 1
+        beyond = err > 3.0 * r.sd_deg[:, 2]
+        assert r.aligned.mean() >= 0.9, seed
+        false_aligned = r.aligned & beyond & (err > 10.0)
+        assert not false_aligned.any(), (seed, float(err[false_aligned].max()))
+        n_aligned += int(r.aligned.sum())
+        n_beyond += int((r.aligned & beyond).sum())
+    assert n_beyond <= 0.05 * n_aligned, n_beyond / n_aligned
 
 
 def test_one_fast_course_at_start_does_not_flag_the_heading() -> None:

@@ -142,7 +142,7 @@ class GnssSection:
 
 @dataclass(frozen=True)
 class HeadingSection:
-    min_speed: float = _f(3.0, "mps")
+    min_speed: float = _f(1.5, "mps")
     max_yaw_rate: float = _f(20.0, "dps")
     max_lat_accel: float = _f(4.0, "mps2")
     sideslip_sd: float = _f(0.3, "deg")

@@ -10,8 +10,9 @@ What.  Giving the filter a yaw (from a course, from observability) and *flagging
 are separate steps.  The yaw is set as before; the flag waits for evidence over time:
 
 ground profile (course ~ heading)
-    every GNSS epoch at >= ``_CHECK_SPEED`` (below the course update's own speed, so the
-    2-3 m/s cases are checked too) outside fast turns is a *course check*: d = wrap(yaw -
+    every GNSS epoch at >= ``_CHECK_SPEED`` (the default ``[heading] min_speed_mps`` of the
+    course update; a configured higher one leaves the slower epochs to the checks alone)
+    outside fast turns is a *course check*: d = wrap(yaw -
     course - learned sideslip); the check is *consistent* when |d| < 90 deg and
     d^2 <= 9 (P_yaw + sigma_course^2 + sigma_sideslip^2).  ``_CONFIRM_N`` consistent checks
     in a row spanning ``_CONFIRM_S`` set the flag (counted ``heading_aligned_from_course``
@@ -22,7 +23,19 @@ other profiles (no course; without a yaw bank)
 
 A run of consistent-direction checks beyond 3 sigma (``_CONFIRM_N`` over ``_CONFIRM_S``) says
 the yaw has left its sigma: it is set to the course again and the flag drops
-(``heading_reset_inconsistent``; below the course update's speed nothing else would notice).
+(``heading_reset_inconsistent``; where the course update does not run, nothing else would
+notice).
+That run is slow and one check back inside 3 sigma restarts it: a yaw drifting off at 2 m/s,
+where one check's course sigma (~3 deg) is as large as the yaw's own, stayed flagged 20-50
+deg off with sigma ~5 deg (issue 14).  So the flag also answers to the mean of the last
+``_WATCH_N`` checks, whose course noise is ``_WATCH_N`` times smaller: beyond 3 sigma of
+(P_yaw + mean course variance / ``_WATCH_N`` + sideslip) and beyond ``_WATCH_FLOOR`` the flag
+drops at once (``heading_unflagged_drift``; the yaw is left to the filter and the run rule)
+and comes back only after ``_CONFIRM_N`` consistent checks over ``_CONFIRM_S``, each with the
+mean consistent too.  The floor: without it the mean (replayed on the logged checks of this
+case) dropped the flag on 1-5 % of the instants of seeds whose heading error never left 3
+sigma, so the window's checks are less independent than the white course noise model says;
+a flag is a coarse statement, the sigma the fine one.
 Backwards motion (|d| > 90 deg at a check) is reversing only for so long: from the first
 backward check of a run, ``[heading] max_reverse_s`` (30 s) once the flag is set, or
 ``_CONFIRM_S`` with ``_CONFIRM_N`` checks while it is not (an unconfirmed yaw that points
@@ -54,11 +67,18 @@ _CHECK_SPEED = 1.5  # m/s: course checks from here (course sigma ~4 deg at 0.1 m
 _CONFIRM_N = 5  # consistent checks (epochs) in a row ...
 _CONFIRM_S = 3.0  # ... spanning at least this long, s
 
+# mean of the last few checks: course noise averaged down, so a yaw a few sigma off shows
+# within half a second at 10 Hz (a run of single checks beyond 3 sigma needs _CONFIRM_S)
+_WATCH_N = 5
+_WATCH_FLOOR = 5.0 * math.pi / 180.0  # rad: below this the mean never drops the flag
+
 _NONE, _COURSE, _OBSERVED = 0, 1, 2
 # state array layout (no Python floats are rebound on the epoch path: the allocation test
 # counts them): yaw origin, consistent run length, its first time (s), backward run length,
-# its first time (s), yaw movement during the run (rad), flag for a requested realignment
-_ORIGIN, _OK_N, _OK_T0, _BACK_N, _BACK_T0, _MOVED, _REALIGN, _BAD_N, _BAD_T0 = range(9)
+# its first time (s), yaw movement during the run (rad), flag for a requested realignment,
+# inconsistent run length, its first time (s), checks in the watch window (count)
+(_ORIGIN, _OK_N, _OK_T0, _BACK_N, _BACK_T0, _MOVED, _REALIGN, _BAD_N, _BAD_T0,
+ _WIN_N) = range(10)
 
 
 class HeadingAlignment:
@@ -71,7 +91,10 @@ class HeadingAlignment:
         # traditional mode does not take course as heading: there a failed check only drops
         # the flag, the yaw is left to the filter
         self.may_realign = cfg.filter.mode == "completed"
-        self._s = np.zeros(9)
+        self._s = np.zeros(10)
+        # the last _WATCH_N forward checks: (d (rad), course variance (rad^2)) per column,
+        # written round-robin at _WIN_N % _WATCH_N
+        self._win = np.zeros((2, _WATCH_N))
         self.reset()
 
     def reset(self) -> None:
@@ -101,6 +124,7 @@ class HeadingAlignment:
         s[_BAD_T0] = -1.0
         s[_MOVED] = 0.0
         s[_REALIGN] = 0.0
+        s[_WIN_N] = 0.0
         if est.yaw_bank is not None:
             # the bank owns the flag; where the yaw is set the flag was set before
             if not est.heading_aligned:
@@ -131,12 +155,14 @@ class HeadingAlignment:
             return
         speed = math.hypot(g.vel_n, g.vel_e)
         if speed < _CHECK_SPEED:
+            s[_WIN_N] = 0.0  # the window holds consecutive checks only
             return
         c = self.cfg.heading
         m = est.mat_nb
         r = est.rate_b
         yaw_rate = m[2, 0] * r[0] + m[2, 1] * r[1] + m[2, 2] * r[2]
         if abs(yaw_rate) > c.max_yaw_rate or abs(yaw_rate) * speed > c.max_lat_accel:
+            s[_WIN_N] = 0.0
             return
         t = g.t_us * 1e-6
         a_lat = yaw_rate * speed
@@ -146,6 +172,7 @@ class HeadingAlignment:
         if abs(d) >= 0.5 * math.pi:
             s[_OK_N] = 0.0
             s[_BAD_N] = 0.0
+            s[_WIN_N] = 0.0
             if s[_BACK_N] == 0.0:
                 s[_BACK_T0] = t
             s[_BACK_N] += 1.0
@@ -155,8 +182,14 @@ class HeadingAlignment:
                 self._wrong(est, "reverse")
             return
         s[_BACK_N] = 0.0
-        var = (float(est.P[2, 2]) + (s_sd / speed) ** 2 + sd_beta * sd_beta
-               + a_lat * a_lat * slip_gain_var)
+        var_c = (s_sd / speed) ** 2
+        var_y = float(est.P[2, 2]) + sd_beta * sd_beta + a_lat * a_lat * slip_gain_var
+        var = var_y + var_c
+        drift = self._watch(d, var_c, var_y)
+        if drift and est.heading_aligned:
+            # the mean of the last checks says the yaw has left its sigma: not aligned now
+            est.heading_aligned = False
+            est.counters["heading_unflagged_drift"] += 1
         if d * d > 9.0 * var:
             # forwards but beyond 3 sigma: a few epochs are noise or an unmodelled slip;
             # a run of them says the yaw has left its sigma (a filter whose tilt a noisy
@@ -170,12 +203,37 @@ class HeadingAlignment:
                 self._wrong(est, "inconsistent")
             return
         s[_BAD_N] = 0.0
+        if drift:
+            s[_OK_N] = 0.0
+            return
         if s[_OK_N] == 0.0:
             s[_OK_T0] = t
         s[_OK_N] += 1.0
         if (not est.heading_aligned and s[_OK_N] >= _CONFIRM_N
                 and t - s[_OK_T0] >= _CONFIRM_S):
             self._flag(est)
+
+    def _watch(self, d: float, var_c: float, var_y: float) -> bool:
+        """Add one forward check (``d`` rad, course variance ``var_c``, the rest of its
+        variance ``var_y``, rad^2) to the window; whether the window's mean is beyond 3 sigma
+        and ``_WATCH_FLOOR`` (the yaw has left its sigma)."""
+        s = self._s
+        w = self._win
+        k = int(s[_WIN_N]) % _WATCH_N
+        w[0, k] = d
+        w[1, k] = var_c
+        s[_WIN_N] += 1.0
+        if s[_WIN_N] < _WATCH_N:
+            return False
+        mean = 0.0
+        vc = 0.0
+        for i in range(_WATCH_N):
+            mean += w[0, i]
+            vc += w[1, i]
+        mean /= _WATCH_N
+        # var of the mean: the yaw's (common to all checks) + the course noise averaged down
+        lim = 3.0 * math.sqrt(var_y + vc / (_WATCH_N * _WATCH_N))
+        return abs(mean) > max(lim, _WATCH_FLOOR)
 
     def check_observed(self, est: Estimator, t_us: int) -> None:
         """One epoch of the observability rule (profiles without course checks)."""
