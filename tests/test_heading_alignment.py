@@ -100,3 +100,40 @@ def test_reversing_does_not_excuse_a_flipped_heading_forever() -> None:
             err_at_check = abs(math.degrees((d + math.pi) % (2 * math.pi) - math.pi))
     assert est.counters["heading_reset_reverse"] >= 1
     assert err_at_check < 10.0
+
+
+def _checks(est: Any, course_off_deg: float, n: int, t0_s: float) -> None:
+    """``n`` course checks at 10 Hz and 2 m/s whose course is ``course_off_deg`` from the
+    filter's yaw (0.1 m/s speed sigma: ~2.9 deg of course noise per check)."""
+    yaw = math.atan2(est.mat_nb[1, 0], est.mat_nb[0, 0])
+    chi = yaw - math.radians(course_off_deg)
+    al = est.gnss.course.align
+    for k in range(n):
+        g = GnssSample(t_us=int((t0_s + 0.1 * k) * 1e6), lat_rad=0.8, lon_rad=0.1, alt_m=0.0,
+                       vel_n=2.0 * math.cos(chi), vel_e=2.0 * math.sin(chi), vel_d=0.0,
+                       h_acc_m=1.0, v_acc_m=1.0, vel_acc_mps=0.1)
+        al.check_course(est, g, 0.1, 0.0, 0.0, math.radians(0.3))
+
+
+def test_a_yaw_off_within_each_checks_sigma_but_not_the_means_is_unflagged() -> None:
+    """GIVEN a flagged heading with a 1 deg sigma at 2 m/s (one check's sigma 3.1 deg: yaw,
+    course noise, sideslip),
+    WHEN the course checks say the yaw is 8 deg off (inside every single check's 3 sigma of
+    9.3 deg, so the run of checks beyond 3 sigma never starts),
+    THEN within 5 checks the mean of the last five (3 sigma ~5 deg) drops the flag
+    (counted heading_unflagged_drift) and the yaw is left alone; and a yaw 4 deg off (below
+    the watch's 5 deg floor) keeps its flag for 10 s."""
+    for off, dropped in ((8.0, True), (4.0, False)):
+        est = build_estimator(load_config(None, []))
+        est.gnss.course.align.yaw_given(est, from_course=True)
+        est.P[2, :] = 0.0
+        est.P[:, 2] = 0.0
+        est.P[2, 2] = math.radians(1.0) ** 2
+        _checks(est, 0.0, 40, 0.0)
+        assert est.heading_aligned
+        yaw = math.atan2(est.mat_nb[1, 0], est.mat_nb[0, 0])
+        _checks(est, off, 5 if dropped else 100, 4.0)
+        assert est.heading_aligned is not dropped, off
+        assert est.counters["heading_unflagged_drift"] == int(dropped)
+        assert not est.gnss.course.align.realign_requested
+        assert math.atan2(est.mat_nb[1, 0], est.mat_nb[0, 0]) == yaw
