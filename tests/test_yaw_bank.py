@@ -221,6 +221,52 @@ def test_a_turn_at_unknown_heading_is_not_taken_for_tilt(seed: int) -> None:
     assert worst <= 3.0
 
 
+@pytest.mark.parametrize("seed", [19, 47])
+def test_the_formerly_false_seeds_stay_within_10_deg(seed: int) -> None:
+    """GIVEN multirotor_manoeuvre seeds 19 and 47 (consumer IMU; the two seeds of 100 that
+    were flagged aligned more than 10 deg off: their trial turned the heading by ~150 deg
+    while the roll/pitch rows of P kept the accelerometer-bias correlation of the old
+    heading, and pitch then went 3.5 deg off at a 0.45 deg sigma),
+    WHEN they run with the default multirotor profile,
+    THEN they align, are never more than 10 deg off while aligned, and at most 5 % of the
+    aligned epochs are beyond 3 sigma."""
+    run = consumer("multirotor_manoeuvre", seed)
+    e = Estimator(cfg("filter.profile=multirotor"))
+    _, err, sd, aligned = _aligned_errors(run, e)
+    assert aligned.any()
+    assert np.all(np.abs(err[aligned]) < math.radians(10.0))
+    assert np.mean(np.abs(err[aligned]) > 3.0 * sd[aligned]) <= 0.05
+
+
+@pytest.mark.parametrize("d", [0.3, -2.6, math.pi])
+def test_a_bank_heading_reset_turns_the_tilt_and_velocity_covariance(d: float) -> None:
+    """GIVEN an estimator whose P is a random covariance (tilt correlated with everything,
+    the accelerometer bias among it),
+    WHEN the bank turns the main heading by d (its trial or realignment),
+    THEN the roll/pitch and north/east velocity rows and columns of P are turned by Rz(d)
+    (navigation-frame errors turn with the attitude), the yaw row is the new variance alone,
+    the body-frame blocks are untouched, and P stays symmetric positive definite."""
+    e = Estimator(cfg("filter.profile=multirotor"))
+    yb = e.yaw_bank
+    assert yb is not None
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(15, 15))
+    P0 = a @ a.T + 15.0 * np.eye(15)
+    e.P[:, :] = P0
+    yb._set_main_yaw(e, d, 0.01)
+    T = np.eye(15)
+    c, s = math.cos(d), math.sin(d)
+    for i in (0, 3):
+        T[i:i + 2, i:i + 2] = [[c, -s], [s, c]]
+    want = T @ P0 @ T.T
+    want[2, :] = 0.0
+    want[:, 2] = 0.0
+    want[2, 2] = 0.01
+    np.testing.assert_allclose(e.P, want, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(e.P[9:, 9:], P0[9:, 9:])
+    assert np.all(np.linalg.eigvalsh(e.P) > 0.0)
+
+
 def test_no_alignment_in_hover_without_horizontal_acceleration() -> None:
     """GIVEN the multirotor scenario's first 34 s (levelling, climb to hover, hover: no
     horizontal acceleration),

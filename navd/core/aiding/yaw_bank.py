@@ -333,11 +333,35 @@ class YawBank:
     # ------------------------------------------------------------------ actions
     def _set_main_yaw(self, est: Estimator, d: float, var: float) -> None:
         """Turn the main attitude by d (about down), its yaw variance to var, no yaw
-        correlations left (the yaw is new information)."""
+        correlations left (the yaw is new information).
+
+        The tilt error is a navigation-frame vector: turning the attitude by d turns it
+        too (C_hat' = Rz(d) Exp(-phi) C = Exp(-Rz(d) phi) Rz(d) C), so the rows and columns
+        of roll/pitch error in P turn with it.  Left as they were, their correlation with
+        the body-frame accelerometer bias (levelling makes g x tilt + bias known, either
+        alone not) belongs to a heading up to 180 deg away, and the next accelerations
+        "separate" tilt from bias with information that is not there: seed 47 of
+        multirotor_manoeuvre, pitch 3.5 deg off at a 0.45 deg sigma after its trial
+        (docs/results.md, issue 15).  Velocity (also navigation-frame) turns the same way
+        before the trial moves it onto the fix."""
         yk.rotate_main(est.buf, d)
         yk.bank_rotate(self.buf, d)
         self._s[_AGREE_REF] = yk.wrap(self._s[_AGREE_REF] - d)
         P = est.P
+        c = math.cos(d)
+        sn = math.sin(d)
+        for a in (0, 3):  # tilt N/E, velocity N/E: rows then columns, P <- R P R^T
+            b = a + 1
+            for k in range(15):
+                x = float(P[a, k])
+                y = float(P[b, k])
+                P[a, k] = c * x - sn * y
+                P[b, k] = sn * x + c * y
+            for k in range(15):
+                x = float(P[k, a])
+                y = float(P[k, b])
+                P[k, a] = c * x - sn * y
+                P[k, b] = sn * x + c * y
         P[2, :] = 0.0
         P[:, 2] = 0.0
         P[2, 2] = var
