@@ -53,9 +53,11 @@ def test_a_clean_imu_keeps_the_configured_noise() -> None:
     assert clean.gnss.adaptive.r_scale <= math.sqrt(2.0) + 1e-9
     gyro = _run({"imu.gyro_offset_rps": [1.0 * DEG, -0.7 * DEG, 0.5 * DEG]})
     assert gyro.gnss.adaptive.scale <= math.sqrt(2.0) + 1e-9
-    # the innovations do not persist: the gyro-bias walk is left as configured
+    # the innovations do not persist: the gyro-bias walk is left as configured and the
+    # tilt / accelerometer-bias split is never reopened
     for est in (clean, gyro):
         assert est.gnss.adaptive.bias_scale == 1.0
+        assert est.counters.get("tilt_split_reopened", 0) == 0
 
 
 def test_gnss_velocity_noisier_than_reported_scales_r_not_q() -> None:
@@ -70,18 +72,19 @@ def test_gnss_velocity_noisier_than_reported_scales_r_not_q() -> None:
     assert a.r_scale > 2.0 * a.scale
 
 
-def test_a_gyro_bias_drifting_far_faster_than_configured_raises_its_random_walk() -> None:
+def test_a_gyro_bias_drifting_far_faster_than_configured_keeps_sigma_honest() -> None:
     """GIVEN car480 (seeds 1-3) whose gyro bias walks at 3000 deg/h/sqrt(h), 600x the default
     config's 5 (a warming consumer gyro: log171's onboard EKF saw 0.2 deg/s in 2 minutes),
     WHEN each is run with the default config and with [filter] max_bias_q_scale = 1 (control),
-    THEN the velocity innovations persist from epoch to epoch and the gyro-bias random walk
-    is scaled up (counted) on every seed, never in the control, and pooled over the seeds
-    the pitch RMS is at most half the control's and fewer instants are beyond 3 sigma.
+    THEN the velocity innovations persist and the gyro-bias random walk is scaled up (counted)
+    on every seed, never in the control; pooled over the seeds the pitch RMS is at most half
+    the control's, and roll and pitch are each beyond 3 sigma in at most 5 % of instants
+    (issue 14's target; the control: ~70 %).
 
-    Pooled, not one seed: a single seed's beyond-3-sigma share flips with a 0.5 % change of
-    the initial tilt sigma (docs/results.md, "Tilt with the consumer default").  The filter
-    is still beyond 3 sigma in ~60 % of instants here (control ~70 %): this case is not
-    honest yet (issue 14), and the test does not pretend it is."""
+    Pooled, not one seed: a single seed's figures move with small changes of the initial tilt
+    sigma (docs/results.md, "Tilt with the consumer default").  On main before the
+    non-zero-mean test and the reopened tilt split (docs/results.md, "Drifting gyro: honest
+    sigma") the adaptation alone left ~55 % of pitch instants beyond 3 sigma."""
     rb = load_benchmark("robustness")
     o = {"imu.gyro_bias_rw_rps_per_sqrt_s": 3000.0 * DEG / 3600.0 / 60.0}
     err_on, err_off, ex_on, ex_off = [], [], [], []
@@ -91,9 +94,10 @@ def test_a_gyro_bias_drifting_far_faster_than_configured_raises_its_random_walk(
         off = rb.score_sim(run, "ground", ("filter.max_bias_q_scale=1",))
         assert on.counters.get("bias_q_up", 0) >= 1, seed
         assert off.counters.get("bias_q_up", 0) == 0, seed
+        assert off.counters.get("tilt_split_reopened", 0) == 0, seed
         for r, err, ex in ((on, err_on, ex_on), (off, err_off, ex_off)):
-            e, sd = r.err_deg[:, 1], r.sd_deg[:, 1]
-            err.append(e)
+            e, sd = r.err_deg[:, :2], r.sd_deg[:, :2]  # roll, pitch
+            err.append(e[:, 1])
             ex.append(np.abs(e) > 3.0 * sd)
 
     def rms(parts: list[np.ndarray]) -> float:
@@ -101,6 +105,7 @@ def test_a_gyro_bias_drifting_far_faster_than_configured_raises_its_random_walk(
         return float(np.sqrt(np.mean(e * e)))
 
     rms_on, rms_off = rms(err_on), rms(err_off)
-    share_on, share_off = (float(np.mean(np.concatenate(x))) for x in (ex_on, ex_off))
+    share_on = np.mean(np.concatenate(ex_on), axis=0)  # roll, pitch
+    share_off = np.mean(np.concatenate(ex_off), axis=0)
     assert rms_on <= 0.5 * rms_off, (rms_on, rms_off)
-    assert share_on < share_off, (share_on, share_off)
+    assert share_on[0] <= 0.05 and share_on[1] <= 0.05, (share_on, share_off)

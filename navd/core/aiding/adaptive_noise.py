@@ -46,6 +46,14 @@ the same currency: the tilt the gyro-bias uncertainty can build within one windo
 must be below the specific-force error's sigma.  And the first window after the biases
 settle is skipped: its innovations still carry the convergence that just ended.
 
+Gyro-bias walk.  Innovations that persist say the filter lags a slow error it believes it
+knows: a window with lag-1 correlation above ``_RHO_UP``, or whose innovations keep a mean
+(``_MR_UP``: a drift the filter half-follows keeps rho low), scales the gyro-bias random walk
+up; the mean also reopens the tilt / accelerometer-bias split by the acceleration it left
+unexplained (:meth:`AdaptiveNoise._reopen_split`), since the tilt the drift built before is
+already hidden in the bias.  Counted ``bias_q_up`` / ``bias_q_down`` /
+``tilt_split_reopened``.
+
 Counted ``q_scale_up`` / ``q_scale_down`` / ``r_scale_up`` / ``r_scale_down``; the status
 record shows both scales.  A restart keeps them (it changes neither sensor).
 """
@@ -89,10 +97,20 @@ _UNLATCH = 0.5  # bias variance growth (in prior variances) that says a reset wi
 # benchmark); the real logs give medians of 0.3-0.85 (log171, quad123, f450, X8).
 _RHO_UP = 0.5
 _RHO_DOWN = 0.25
+# persistence as a non-zero mean: M = |sum z|^2 / sum |z|^2 over the window's horizontal
+# velocity innovations is chi-square(2)/2 for white ones, P(M > x) = exp(-x): above _MR_UP
+# (p = 0.25 %) the window's innovations carry a mean the filter does not model: the walk is
+# scaled up by _B_BIG and the tilt / accelerometer-bias split reopened (_reopen_split).
+# Measured (mean ratio per window): car480 clean at most 7.2 in 96 windows; the 600x drifting
+# gyro 11-33 from 70 s on while its lag-1 correlation stayed 0.1-0.5; real logs 3-17 (median).
+_MR_UP = 6.0
+_MR_DOWN = 1.0  # ... the walk comes down only in a window with M below this (and low rho)
+_B_DOWN = 1.19  # ... and then by 2^(1/4): a consistent window is no proof the walk is too large
+_B_BIG = 256.0  # step on a non-zero mean: the 600x walk (variance 3.6e5) within 3 windows
 _B_STEP = 16.0  # a real drift (log171: ~720 deg/h in 2 min) needs a walk 1000x the prior's
 # state array: high count, epochs counted, Q scale, R scale, sums for the lag-1 correlation
 # of the horizontal velocity innovations (sum z_k z_k-1, sum z_k^2), the previous z (N, E)
-_HIGH, _N, _SCALE, _RSCALE, _SZZ, _SZ2, _PN, _PE, _BSCALE = range(9)
+_HIGH, _N, _SCALE, _RSCALE, _SZZ, _SZ2, _PN, _PE, _BSCALE, _SN, _SE, _AN, _AE = range(13)
 
 
 class AdaptiveNoise:
@@ -106,7 +124,7 @@ class AdaptiveNoise:
         self.max_bias_scale = cfg.filter.max_bias_q_scale
         # chi-square medians for m = 1..4 degrees of freedom
         self._median = np.array([0.0] + [chi2_quantile(0.5, m) for m in range(1, 5)])
-        self._s = np.zeros(9)
+        self._s = np.zeros(13)
         self._s[_SCALE] = 1.0
         self._s[_BSCALE] = 1.0
         self._s[_RSCALE] = 1.0
@@ -125,6 +143,7 @@ class AdaptiveNoise:
         self._pv = np.zeros(6)  # the bias variances since then, least seen
         self._ve = np.zeros(3)  # scratch: variance of the specific-force error per NED axis
         self._accel_sd2 = imu.accel_bias_sd ** 2
+        self._t = np.zeros(5)  # scratch: the direction _reopen_split widens
 
     @property
     def scale(self) -> float:
@@ -154,7 +173,7 @@ class AdaptiveNoise:
 
     def _clear(self) -> None:
         s = self._s
-        s[_HIGH] = s[_N] = s[_SZZ] = s[_SZ2] = 0.0
+        s[_HIGH] = s[_N] = s[_SZZ] = s[_SZ2] = s[_SN] = s[_SE] = s[_AN] = s[_AE] = 0.0
         s[_PN] = math.nan
 
     def _median_ratio(self) -> float:
@@ -231,7 +250,7 @@ class AdaptiveNoise:
             pv[k] = P[9 + k, 9 + k]
         return True
 
-    def after_epoch(self, est: Estimator, vel_d_reported: bool) -> None:
+    def after_epoch(self, est: Estimator, vel_d_reported: bool, vel_sd: float = math.nan) -> None:
         """Call once per GNSS epoch after its updates."""
         if not self.enabled:
             return
@@ -263,19 +282,30 @@ class AdaptiveNoise:
             if math.isfinite(s[_PN]):
                 s[_SZZ] += zn * s[_PN] + ze * s[_PE]
             s[_SZ2] += zn * zn + ze * ze
+            s[_SN] += zn
+            s[_SE] += ze
+            if flag == ACCEPTED and vel_sd > 0.0:
+                r2 = vel_sd * vel_sd
+                s[_AN] += zn * min(est.P[3, 3] / r2, 1.0) / self._fix_dt
+                s[_AE] += ze * min(est.P[4, 4] / r2, 1.0) / self._fix_dt
             s[_PN] = zn
             s[_PE] = ze
         if s[_N] < _WINDOW:
             return
         z = (s[_HIGH] - 0.5 * s[_N]) / (0.5 * math.sqrt(s[_N]))
         rho = s[_SZZ] / s[_SZ2] if s[_SZ2] > 0.0 else 0.0
+        mr = (s[_SN] * s[_SN] + s[_SE] * s[_SE]) / s[_SZ2] if s[_SZ2] > 0.0 else 0.0
+        a_n, a_e = s[_AN] / _WINDOW, s[_AE] / _WINDOW
         self._clear()
-        if rho > _RHO_UP and s[_BSCALE] < self.max_bias_scale:
-            s[_BSCALE] = min(s[_BSCALE] * _B_STEP, self.max_bias_scale)
+        if (rho > _RHO_UP or mr > _MR_UP) and s[_BSCALE] < self.max_bias_scale:
+            step = _B_BIG if mr > _MR_UP else _B_STEP
+            s[_BSCALE] = min(s[_BSCALE] * step, self.max_bias_scale)
             est.counters["bias_q_up"] += 1
             self._apply(est)
-        elif rho < _RHO_DOWN and s[_BSCALE] > 1.0:
-            s[_BSCALE] = max(s[_BSCALE] / 2.0, 1.0)
+            if mr > _MR_UP:
+                self._reopen_split(est, a_n, a_e)
+        elif rho < _RHO_DOWN and mr < _MR_DOWN and s[_BSCALE] > 1.0:
+            s[_BSCALE] = max(s[_BSCALE] / _B_DOWN, 1.0)
             est.counters["bias_q_down"] += 1
             self._apply(est)
         if z > _Z_UP:
@@ -300,6 +330,49 @@ class AdaptiveNoise:
                 s[k] = max(s[k] / _STEP, 1.0)
                 est.counters["q_scale_down" if k == _SCALE else "r_scale_down"] += 1
                 self._apply(est)
+
+    def _reopen_split(self, est: Estimator, a_n: float, a_e: float) -> None:
+        """Widen P along the direction the velocity cannot see: tilt and horizontal
+        accelerometer bias moved together so that the specific-force error
+        ``e = [f^n x] phi + C dba`` stays (phi_N = w_E / g, phi_E = -w_N / g, C dba += w, w a
+        NED-horizontal bias).
+
+        Why.  A window whose velocity innovations keep a mean says the specific force was
+        wrong for a while; with a gyro bias drifting faster than modelled, what the filter made
+        of it is a wrong split: the tilt the bias built went into the accelerometer bias (the
+        two are one unknown between turns), the tilt stays off and its sigma, believing the
+        split known from earlier turns, does not cover it (car480, 600x walk: 4-13 deg with a
+        0.5 deg sigma).  Raising the walk only helps from now on.  So the split is reopened, as
+        at levelling (core/level.py), by the acceleration the window could not explain:
+        a (a_n, a_e; m/s^2, NED) is the mean innovation times the velocity gain (P_vv / R) over
+        the GNSS interval, the persistent specific-force error a steady-state velocity loop
+        leaves.  Topped up to a^2 along each horizontal direction, never past the
+        accelerometer-bias prior variance (what levelling itself leaves open).  A rank-one
+        addition per direction: P stays symmetric and positive semi-definite; scalars only."""
+        P = est.P
+        C = est.mat_nb
+        g = G0
+        opened = False
+        for c in range(2):  # bias direction w along N (c = 0), E (c = 1)
+            cur = 0.0  # variance of the bias along that direction, (C P_bb C^T)_cc
+            for j in range(3):
+                for k in range(3):
+                    cur += C[c, j] * C[c, k] * P[12 + j, 12 + k]
+            add = min((a_n if c == 0 else a_e) ** 2, self._accel_sd2) - cur
+            if add <= 0.0:
+                continue
+            opened = True
+            # the direction t over the states phi_N, phi_E, dba_x..z (indices 0, 1, 12-14)
+            t = self._t
+            t[0] = 1.0 / g if c == 1 else 0.0
+            t[1] = -1.0 / g if c == 0 else 0.0
+            t[2], t[3], t[4] = C[c, 0], C[c, 1], C[c, 2]
+            for a in range(5):
+                ia = a if a < 2 else 10 + a
+                for b in range(5):
+                    P[ia, 10 + b if b >= 2 else b] += add * t[a] * t[b]
+        if opened:
+            est.counters["tilt_split_reopened"] += 1
 
     def _apply(self, est: Estimator) -> None:
         q = est.buf[st.Q:st.Q + 15]  # the continuous noise densities the propagation uses

@@ -173,7 +173,7 @@ class GnssAiding:
         d_yaw = math.atan2(m_nb[1, 0], m_nb[0, 0]) - yaw0
         self.course.align.note_yaw_moved((d_yaw + math.pi) % (2.0 * math.pi) - math.pi)
         self.recovery.after_epoch(est, g.t_us, h_sd, v_sd, s_sd, math.isfinite(g.vel_d))
-        self.adaptive.after_epoch(est, math.isfinite(g.vel_d))
+        self.adaptive.after_epoch(est, math.isfinite(g.vel_d), s_sd)
         return True
 
     def _heading_hold(self, est: Estimator, g: GnssSample) -> bool:
