@@ -52,11 +52,12 @@ JUNK_WINDOW_US = 1_000_000
 JUNK_BUDGET_BYTES = 32_768
 MUTE_US = 1_000_000
 _MAX_PEERS = 64
-# datagrams read per readiness callback at most, so one input cannot hold the loop
-_MAX_BATCH = 256
+# datagrams read per readiness callback at most (libuv's own UDP reader takes 32 per loop
+# turn): a backlog stays in the socket rather than racing ahead of the estimator task
+_MAX_BATCH = 32
 # more datagrams than this in one drain: a burst, no hold after it (a paced 1 kHz stream
-# gives ~20 per drain; 64 at 16 kHz is 4 ms, far from filling the socket buffer)
-_BURST = 64
+# gives at most ~12 per drain)
+_BURST = 24
 # read buffer: the largest UDP payload, so an oversize datagram is seen (and refused) whole
 _RX_BYTES = 65536
 
