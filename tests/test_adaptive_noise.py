@@ -31,12 +31,15 @@ NOISE_X3 = {"imu.arw_rad_per_sqrt_s": 3 * 0.5 * DEG / 60.0, "imu.vrw_mps_per_sqr
 def test_three_times_the_configured_imu_noise_is_found() -> None:
     """GIVEN car480 whose IMU white noise is 3x the default config's (9x the variance),
     WHEN 200 s are run,
-    THEN the white-noise variance scale has risen to between 4 and 25, and no velocity
-    lock-out reset was needed; with [filter] adaptive_noise = false the same run stays at
-    scale 1 and needs at least one reset (the control)."""
+    THEN the white-noise variance scale has risen to between 4 and 25, the fixes' variance
+    scale has taken at most one step up (a chance fluctuation; a step is the window's median
+    NIS ratio, sqrt(2) to 4), and no velocity lock-out reset was needed; with [filter]
+    adaptive_noise = false the same run stays at scale 1 and needs at least one reset (the
+    control)."""
     est = _run(NOISE_X3)
     assert 4.0 <= est.gnss.adaptive.scale <= 25.0
-    assert est.gnss.adaptive.r_scale <= math.sqrt(2.0) + 1e-9
+    assert est.counters.get("r_scale_up", 0) - est.counters.get("r_scale_down", 0) <= 1
+    assert est.gnss.adaptive.r_scale < est.gnss.adaptive.scale
     assert est.counters["q_scale_up"] >= 2
     assert est.counters.get("reset_lockout_vel", 0) == 0
     off = _run(NOISE_X3, ["filter.adaptive_noise=false"])

@@ -103,14 +103,23 @@ _RHO_DOWN = 0.25
 # scaled up by _B_BIG and the tilt / accelerometer-bias split reopened (_reopen_split).
 # Measured (mean ratio per window): car480 clean at most 7.2 in 96 windows; the 600x drifting
 # gyro 11-33 from 70 s on while its lag-1 correlation stayed 0.1-0.5; real logs 3-17 (median).
+# One window at p = 0.25 % is no proof: a drive of an hour (720 windows) would see ~2 false
+# ones, each reopening the split by a mean that is noise (clean car480, seeds 1-10: 2 reopens;
+# car_run 300 s seed 2: M 7.3 at 288.7 s, accelerometer-bias sigma 2.7 -> 26 mg).  So a lone
+# window above _MR_UP only steps the walk as a persistent rho does (_B_STEP); two in a row
+# (p ~ 6e-6) or one above _MR_ONE (p = 3.4e-4, ~0.24 an hour) take _B_BIG and reopen the
+# split.  Tried (the 600x drifting gyro, seeds 1-6 pooled, roll / pitch beyond 3 sigma; clean
+# reopens in seeds 1-10): one window > 6 (before): 5.7 / 3.5 %, 2; two in a row only:
+# 10.2 / 10.4 %, 0; _MR_ONE 8: 5.2 / 5.8 %, 0; 9: 10.1 / 5.7 %; 12: 6.3 / 5.7 %.
 _MR_UP = 6.0
+_MR_ONE = 8.0
 _MR_DOWN = 1.0  # ... the walk comes down only in a window with M below this (and low rho)
 _B_DOWN = 1.19  # ... and then by 2^(1/4): a consistent window is no proof the walk is too large
 _B_BIG = 256.0  # step on a non-zero mean: the 600x walk (variance 3.6e5) within 3 windows
 _B_STEP = 16.0  # a real drift (log171: ~720 deg/h in 2 min) needs a walk 1000x the prior's
 # state array: high count, epochs counted, Q scale, R scale, sums for the lag-1 correlation
 # of the horizontal velocity innovations (sum z_k z_k-1, sum z_k^2), the previous z (N, E)
-_HIGH, _N, _SCALE, _RSCALE, _SZZ, _SZ2, _PN, _PE, _BSCALE, _SN, _SE, _AN, _AE = range(13)
+_HIGH, _N, _SCALE, _RSCALE, _SZZ, _SZ2, _PN, _PE, _BSCALE, _SN, _SE, _AN, _AE, _MHIT = range(14)
 
 
 class AdaptiveNoise:
@@ -124,7 +133,7 @@ class AdaptiveNoise:
         self.max_bias_scale = cfg.filter.max_bias_q_scale
         # chi-square medians for m = 1..4 degrees of freedom
         self._median = np.array([0.0] + [chi2_quantile(0.5, m) for m in range(1, 5)])
-        self._s = np.zeros(13)
+        self._s = np.zeros(14)
         self._s[_SCALE] = 1.0
         self._s[_BSCALE] = 1.0
         self._s[_RSCALE] = 1.0
@@ -168,6 +177,7 @@ class AdaptiveNoise:
     def reset(self) -> None:
         """Start the window over; the scales are kept (a restart changes neither sensor)."""
         self._clear()
+        self._s[_MHIT] = 0.0
         self._known = False
         self._dwell = 0
 
@@ -264,6 +274,7 @@ class AdaptiveNoise:
         self._t_prev = est.t_us
         if not self._settled(est):
             self._clear()
+            self._s[_MHIT] = 0.0
             self._dwell = 0
             return
         if self._dwell < _WINDOW:  # the first window after settling: skipped (module doc)
@@ -297,12 +308,15 @@ class AdaptiveNoise:
         mr = (s[_SN] * s[_SN] + s[_SE] * s[_SE]) / s[_SZ2] if s[_SZ2] > 0.0 else 0.0
         a_n, a_e = s[_AN] / _WINDOW, s[_AE] / _WINDOW
         self._clear()
-        if (rho > _RHO_UP or mr > _MR_UP) and s[_BSCALE] < self.max_bias_scale:
-            step = _B_BIG if mr > _MR_UP else _B_STEP
+        mean_seen = mr > _MR_UP
+        mean_held = (mean_seen and s[_MHIT] > 0.0) or mr > _MR_ONE  # or one beyond doubt
+        s[_MHIT] = 1.0 if mean_seen else 0.0
+        if (rho > _RHO_UP or mean_seen) and s[_BSCALE] < self.max_bias_scale:
+            step = _B_BIG if mean_held else _B_STEP
             s[_BSCALE] = min(s[_BSCALE] * step, self.max_bias_scale)
             est.counters["bias_q_up"] += 1
             self._apply(est)
-            if mr > _MR_UP:
+            if mean_held:
                 self._reopen_split(est, a_n, a_e)
         elif rho < _RHO_DOWN and mr < _MR_DOWN and s[_BSCALE] > 1.0:
             s[_BSCALE] = max(s[_BSCALE] / _B_DOWN, 1.0)
