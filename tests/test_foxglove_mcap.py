@@ -3,24 +3,41 @@ back with the ``mcap`` package's reader and checked for what Foxglove needs: the
 of its well-known types (foxglove.PoseInFrame, foxglove.LocationFix) with ``jsonschema``
 schema encoding and ``json`` messages, messages valid against the schemas written into the
 file, and contents that match the solution CSV written by the same replay.  The live daemon
-case is in tests/test_daemon_autopilot.py."""
+case is in tests/test_daemon_autopilot.py.
+
+The foxglove.* channels are also checked against Foxglove's official definition of each
+schema, read from the foxglove-sdk wheel (tests/foxglove_official.py), not against the
+schema text navd writes: a field name, type or enum number of navd's own that Foxglove does
+not have fails there."""
 
 from __future__ import annotations
 
 import csv
 import json
 import math
+import re
 from pathlib import Path
 from typing import Any
 
+import foxglove.messages as fm
 import jsonschema
 import numpy as np
 import pytest
+from foxglove_official import (
+    assert_official,
+    decode_official,
+    official_descriptors,
+    official_json_schema,
+    schema_text_problems,
+    sdk_enum_members,
+    sdk_round_trip,
+)
 from mcap.reader import make_reader
 
 from firmware_sim import generate, load_scenario
 from navd.cli.replay import main as replay_main
-from navd.io.foxglove_mcap import CHANNELS, enu_flu_quat
+from navd.io.foxglove_mcap import CHANNELS, FoxgloveMessages, encode_json, enu_flu_quat
+from navd.types import NavSolution
 
 WGS84_A, WGS84_E2 = 6378137.0, 6.69437999014e-3
 
@@ -122,6 +139,99 @@ def test_replay_mcap_channels_and_schemas_are_what_foxglove_expects(
     pose = f["messages"]["/navd/pose"][0][1]
     assert set(pose["pose"]) == {"position", "orientation"}
     assert set(pose["pose"]["orientation"]) == {"x", "y", "z", "w"}
+
+
+FOXGLOVE_NAMES = sorted({name for name, _ in CHANNELS.values() if name.startswith("foxglove.")})
+COV_TYPE = ".foxglove.LocationFix.PositionCovarianceType"
+
+
+@pytest.mark.parametrize("name", FOXGLOVE_NAMES)
+def test_official_schema_read_from_the_sdk_agrees_with_the_sdk_classes(name: str) -> None:
+    """The descriptor reader against the SDK's Python API: field names are the message
+    class's documented parameters, enum numbers its enum members', and a message built and
+    encoded by the SDK decodes to what was given."""
+    assert set(FOXGLOVE_NAMES) >= {"foxglove.LocationFix", "foxglove.PoseInFrame"}
+    d = official_descriptors(name)
+    for msg, fields in d.messages.items():
+        if msg.startswith(".foxglove."):
+            doc = getattr(fm, msg.removeprefix(".foxglove.")).__doc__
+            assert {f.name for f in fields} == set(re.findall(r":param (\w+):", doc)), msg
+    for enum, values in d.enums.items():
+        members = sdk_enum_members(enum)
+        assert {v: n.replace("_", "").lower() for v, n in values.items()} == {
+            v: m.name.lower() for v, m in members.items()}, enum
+    if name == "foxglove.LocationFix":
+        assert d.enums[COV_TYPE] == {0: "UNKNOWN", 1: "APPROXIMATED", 2: "DIAGONAL_KNOWN",
+                                     3: "KNOWN"}
+        sdk = fm.LocationFix(timestamp=fm.Timestamp(sec=7, nsec=8), frame_id="f",
+                             latitude=1.5, longitude=-2.25, altitude=3.0,
+                             position_covariance=[float(k) for k in range(9)],
+                             position_covariance_type=fm.LocationFixPositionCovarianceType.Known,
+                             heading=0.5)
+        want = {"timestamp": {"sec": 7, "nsec": 8}, "frame_id": "f", "latitude": 1.5,
+                "longitude": -2.25, "altitude": 3.0,
+                "position_covariance": [float(k) for k in range(9)],
+                "position_covariance_type": 3, "heading": 0.5}
+        assert decode_official(name, sdk.encode()) == want
+        assert sdk_round_trip(name, want) == want
+    # a wrong field name is refused on both paths
+    bad = {"timestamp": {"sec": 1, "nanosec": 0}}
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.Draft7Validator(official_json_schema(name)).validate(bad)
+    with pytest.raises(TypeError):
+        sdk_round_trip(name, bad)
+
+
+def _nav_sol(t_us: int, pos_sd_m: tuple[float, float, float]) -> NavSolution:
+    h = math.radians(35.0) / 2
+    return NavSolution(
+        t_us=t_us, quat_nb=(math.cos(h), 0.0, 0.0, math.sin(h)), roll_rad=0.0, pitch_rad=0.0,
+        yaw_rad=math.radians(35.0), lat_rad=0.6, lon_rad=1.9, alt_m=400.0,
+        vel_n=(0.0, 0.0, 0.0), att_sd_rad=(0.001, 0.001, 0.01), gyro_bias_rps=(0.0, 0.0, 0.0),
+        accel_bias_mps2=(0.0, 0.0, 0.0), heading_aligned=True, rate_b=(0.0, 0.0, 0.0),
+        pos_sd_m=pos_sd_m, vel_sd_mps=(0.1, 0.1, 0.1), gnss_age_us=0)
+
+
+@pytest.mark.parametrize("pos_sd_m", [(1.0, 2.0, 3.0), (math.nan, math.nan, math.nan)])
+def test_foxglove_messages_are_valid_under_the_official_schemas(
+        pos_sd_m: tuple[float, float, float]) -> None:
+    """Every foxglove.* message navd makes (the same objects go to the MCAP file and the live
+    server), with a known and an unknown position covariance."""
+    out = FoxgloveMessages(math.radians(2.0)).of(_nav_sol(3_000_250, pos_sd_m))
+    seen: set[str] = set()
+    for topic, obj in out:
+        name, schema = CHANNELS[topic]
+        if not name.startswith("foxglove."):
+            continue
+        seen.add(name)
+        msg = json.loads(encode_json(obj))
+        assert_official(name, msg)
+        assert schema_text_problems(schema, official_json_schema(name)) == []
+        assert msg["timestamp"] == {"sec": 3, "nsec": 250_000}
+    assert seen == set(FOXGLOVE_NAMES)
+    loc = json.loads(encode_json(dict(out)["/navd/location"]))
+    kind = official_descriptors("foxglove.LocationFix").enums[COV_TYPE][
+        loc["position_covariance_type"]]
+    cov = loc["position_covariance"]
+    if math.isnan(pos_sd_m[0]):
+        assert kind == "UNKNOWN" and cov == [0.0] * 9
+    else:  # ENU, row-major: east, north, up on the diagonal
+        assert kind == "DIAGONAL_KNOWN" and cov == [4.0, 0, 0, 0, 1.0, 0, 0, 0, 9.0]
+
+
+def test_replay_mcap_foxglove_channels_are_valid_under_the_official_schemas(
+        replayed: tuple[Path, Path]) -> None:
+    """Read back with the mcap reader: each foxglove.* channel's messages are valid under
+    Foxglove's official schema of the channel's schema name, and the schema text in the file
+    declares nothing the official one does not have."""
+    _, mc = replayed
+    f = read_mcap(mc)
+    names = {t: s[0] for t, s in f["schemas"].items() if s[0].startswith("foxglove.")}
+    assert set(names.values()) == set(FOXGLOVE_NAMES)
+    for topic, name in names.items():
+        assert schema_text_problems(f["schemas"][topic][2], official_json_schema(name)) == []
+        for _, obj in f["messages"][topic]:
+            assert_official(name, obj)
 
 
 def test_replay_mcap_contents_match_the_solution_csv(replayed: tuple[Path, Path]) -> None:

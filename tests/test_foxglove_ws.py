@@ -1,6 +1,8 @@
 """The live Foxglove WebSocket server (navd/io/foxglove_ws.py), spoken to with a plain
 WebSocket client as Foxglove does (subprotocol foxglove.sdk.v1 / foxglove.websocket.v1:
-serverInfo, advertise, subscribe, binary message frames), on 127.0.0.1."""
+serverInfo, advertise, subscribe, binary message frames), on 127.0.0.1.  The foxglove.*
+channels are checked against Foxglove's official schemas from the SDK wheel as well
+(tests/foxglove_official.py)."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ import struct
 from typing import Any
 
 import websockets
+from foxglove_official import assert_official, official_json_schema, schema_text_problems
 
 from navd.io.foxglove_mcap import CHANNELS, FoxgloveMessages
 from navd.io.foxglove_ws import FoxgloveLive
@@ -90,6 +93,33 @@ def test_live_server_advertises_foxglove_schemas_and_streams_the_solutions() -> 
     for (_, _, a), (_, _, b) in zip(by_topic, want, strict=True):
         assert a == json.loads(json.dumps(b))
     assert got[-1] == ("/navd/status", 9_000, {"state": "navigating"})
+
+
+def test_live_foxglove_channels_are_valid_under_the_official_schemas() -> None:
+    """What a client receives: each advertised foxglove.* channel's schema text declares
+    nothing Foxglove's official schema does not have, and its messages are valid under it."""
+    live = FoxgloveLive(host="127.0.0.1", port=0, aligned_sd_rad=math.radians(2.0))
+    sols = [_sol(2_000_000 + 100_000 * k, 30.0 * k - 170.0) for k in range(4)]
+
+    def publish() -> None:
+        for k, s in enumerate(sols):
+            live.write_solution(s, 7_000 + k)
+
+    try:
+        _, chans, got = asyncio.run(foxglove_client(
+            live.port, [t for t in CHANNELS if t != "/navd/status"], 3 * len(sols), publish))
+    finally:
+        live.close()
+    names = {t: c["schemaName"] for t, c in chans.items()
+             if c["schemaName"].startswith("foxglove.")}
+    assert set(names.values()) == {"foxglove.PoseInFrame", "foxglove.LocationFix"}
+    for topic, name in names.items():
+        assert schema_text_problems(json.loads(chans[topic]["schema"]),
+                                    official_json_schema(name)) == []
+    official = [(names[t], obj) for t, _, obj in got if t in names]
+    assert len(official) == 2 * len(sols)
+    for name, obj in official:
+        assert_official(name, obj)
 
 
 def test_enabled_without_the_sdk_is_a_clear_startup_error(
