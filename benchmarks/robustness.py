@@ -32,8 +32,9 @@ Per case (pooled over seeds; instants every 0.1 s of sensor time after navigatio
 
 Real logs (``../shared/data`` beside the checkout, or ``$NAVD_DATA``): roll/pitch RMS
 against the log's onboard attitude (ATT, magnetometer-aided: an estimate, not truth) over
-the in-flight instants (from take-off to a crash, if any: :func:`crash_s`; lock-outs and
-resets still count over the whole log), % of instants with
+the in-flight instants (:mod:`navd.eval.flight`, the rule ``navd replay --log`` states with
+its RMS line: from take-off, not counting handling on the ground, to a crash, if any;
+lock-outs and resets still count over the whole log), % of instants with
 |navd - ATT| > 3 navd-sigma, lock-outs and resets as above.  A log that cannot be read, or
 gives no navigation solution, prints its reason instead of numbers.
 
@@ -65,6 +66,16 @@ from firmware_sim import SimRun, generate, load_scenario
 from firmware_sim.score import Score, score_run
 from navd.config import load_config
 from navd.core.estimator import Estimator
+from navd.eval.flight import (  # noqa: F401  (re-exported: benchmarks/yaw_bank.py, tests)
+    CRASH_RATE_DPS,
+    FLIGHT_RULE,
+    TAKEOFF_RATE_SPREAD_DPS,
+    crash_s,
+    flight_window,
+    imu_rates,
+    reference_errors,
+    takeoff_s,
+)
 from navd.pipeline import build_estimator, solutions
 from navd.types import GnssSample, Sample
 from navd.units import DEG, RAD2DEG
@@ -419,7 +430,8 @@ def verdict(rec: Mapping[str, Any], target: str) -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class RealLog:
-    """A real log, its natural profile, and when it is in flight (see :func:`in_flight_from_s`).
+    """A real log, its natural profile, and when it is in flight (:mod:`navd.eval.flight`, the
+    rule ``navd replay --log`` states with its RMS line).
 
     ``flight_from_s`` > 0 fixes the start of flight (s from the start of the log); 0 means
     "take-off found from the gyros".
@@ -436,82 +448,12 @@ REAL_LOGS: tuple[RealLog, ...] = (
     RealLog("X8", DATA / "px4-x8-flight/InputFilesPX4.zip", "fixed_wing", 20.0,
             "t >= 20 s: hand launch at 16.5 s (docs/results.md, Real flight: X8)"),
     RealLog("f450_glitch", DATA / "inertialnav-quads/f450_glitch_log.zip", "multirotor", 0.0,
-            "from take-off: first 1 s with gyro-rate spread > 2 deg/s"),
+            "navd.eval.flight: " + FLIGHT_RULE),
     RealLog("quad123", DATA / "inertialnav-quads/quad123.zip", "multirotor", 0.0,
-            "from take-off: first 1 s with gyro-rate spread > 2 deg/s"),
+            "navd.eval.flight: " + FLIGHT_RULE),
     RealLog("log171", DATA / "arducopter-log171/log171.bin", "multirotor", 0.0,
-            "from take-off: first 1 s with gyro-rate spread > 2 deg/s, to the crash: first "
-            "body rate > 1000 deg/s"),
+            "navd.eval.flight: " + FLIGHT_RULE),
 )
-
-TAKEOFF_RATE_SPREAD_DPS = 2.0
-# a body rate no vehicle flies at, but a tumbling crash reaches (a consumer gyro's range is
-# 2000 deg/s; the real logs fly below 200 deg/s, log171 hits 2042 deg/s in its crash)
-CRASH_RATE_DPS = 1000.0
-
-
-def crash_s(t_us: npt.NDArray[np.int64], rates_rps: Arr) -> float:
-    """Time (s from ``t_us[0]``) of the first sample whose body rate exceeds CRASH_RATE_DPS,
-    NaN if none: flight ends there (what follows is a tumble and a vehicle on the ground,
-    not flight; log171 ends upside down).
-
-    Args:
-        t_us: (N,) sample times, us.
-        rates_rps: (N, 3) angular rates, rad/s.
-    """
-    hit = np.nonzero(np.sqrt(np.sum(rates_rps * rates_rps, axis=1)) * RAD2DEG
-                     > CRASH_RATE_DPS)[0]
-    return float((t_us[hit[0]] - t_us[0]) * 1e-6) if hit.size else math.nan
-
-
-def takeoff_s(t_us: npt.NDArray[np.int64], rates_rps: Arr) -> float:
-    """Start of the first 1 s window (s from ``t_us[0]``) whose gyro rates spread (RMS of the
-    per-axis standard deviations) exceeds TAKEOFF_RATE_SPREAD_DPS: motors spun up and the
-    airframe moving.  At rest on the ground a MEMS gyro spreads by a few tenths of a deg/s.
-
-    Args:
-        t_us: (N,) sample times, us.
-        rates_rps: (N, 3) angular rates, rad/s.
-    """
-    if t_us.size == 0:
-        return math.nan
-    t = (t_us - t_us[0]) * 1e-6
-    w = np.floor(t).astype(np.int64)
-    for k in range(int(w[-1]) + 1):
-        m = w == k
-        if m.sum() < 3:
-            continue
-        spread = float(np.sqrt(np.mean(np.var(rates_rps[m], axis=0)))) * RAD2DEG
-        if spread > TAKEOFF_RATE_SPREAD_DPS:
-            return float(k)
-    return math.nan
-
-
-def reference_errors(t_us: npt.NDArray[np.int64], angles_rad: Arr,
-                     ref: tuple[npt.NDArray[np.int64], *tuple[Arr, ...]],
-                     max_gap_us: int = 100_000) -> tuple[Arr, npt.NDArray[np.bool_]]:
-    """Angle errors against a reference series (a log's onboard attitude), wrapped.
-
-    Args:
-        t_us: (K,) solution times, us.
-        angles_rad: (K, J) estimated angles, rad (e.g. roll, pitch[, yaw]).
-        ref: reference times (R,) int64 us, then J (R,) angle series, rad, same order.
-        max_gap_us: an instant counts only where a reference sample is this close.
-
-    Returns:
-        (K, J) estimate - reference, rad, in [-pi, pi); (K,) the instants with a reference
-        sample within ``max_gap_us``.  The reference is unwrapped before interpolating, so
-        an angle through +-180 deg interpolates the short way.
-    """
-    rt_us = ref[0]
-    rt = rt_us.astype(np.float64)
-    idx = np.clip(np.searchsorted(rt_us, t_us), 1, len(rt_us) - 1)
-    near = np.minimum(np.abs(rt_us[idx] - t_us), np.abs(rt_us[idx - 1] - t_us)) <= max_gap_us
-    err = np.empty((len(t_us), len(ref) - 1))
-    for j, ang in enumerate(ref[1:]):
-        r = np.interp(t_us.astype(np.float64), rt, np.unwrap(ang))
-        err[:, j] = (angles_rad[:, j] - r + math.pi) % (2 * math.pi) - math.pi
-    return err, near
 
 
 def reference_gyro_corr(imu_t_us: npt.NDArray[np.int64], rates_rps: Arr,
@@ -572,16 +514,13 @@ def score_log(spec: RealLog, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
     a = np.array(rows)
     t_us = a[:, 0].astype(np.int64)
     t0 = int(min(data.imu_t_us[0], ref.t_us[0]))
-    dt = np.maximum(np.diff(data.imu_t_us), 1) * 1e-6
-    rates = data.imu_inc[1:, 0:3] / dt[:, None]
-    start = (spec.flight_from_s if spec.flight_from_s > 0.0
-             else takeoff_s(data.imu_t_us[1:], rates) + (data.imu_t_us[1] - t0) * 1e-6)
+    win = flight_window(data.imu_t_us, data.imu_inc, t0,
+                        spec.flight_from_s if spec.flight_from_s > 0.0 else None)
+    start, end = win.from_s, win.to_s
     rec["flight_from_s"] = start
-    end = crash_s(data.imu_t_us[1:], rates) + (data.imu_t_us[1] - t0) * 1e-6
     rec["flight_to_s"] = end  # NaN: no crash, in flight to the end of the log
     err, near = reference_errors(t_us, a[:, 1:3], (ref.t_us, ref.roll_rad, ref.pitch_rad))
-    t_s = (t_us - t0) * 1e-6
-    fly = near & (t_s >= start) & ~(t_s >= end)
+    fly = near & win.mask(t_us)
     e = err[fly] * RAD2DEG
     sd = a[fly, 3:5] * RAD2DEG
     exceed = np.abs(e) > 3.0 * sd
@@ -594,7 +533,7 @@ def score_log(spec: RealLog, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
         "exceed3_heading_pct": math.nan,
         "lock_pos_s": lp, "lock_vel_s": lv, "lock_all_s": la, "resets": resets(est.counters),
         "ref_gyro_corr": reference_gyro_corr(
-            data.imu_t_us[1:], rates, ref.t_us, ref.roll_rad, ref.pitch_rad,
+            *imu_rates(data.imu_t_us, data.imu_inc), ref.t_us, ref.roll_rad, ref.pitch_rad,
             int(t0 + start * 1e6), int(t0 + end * 1e6) if math.isfinite(end) else None),
     })
     rec.update(verdict(rec, "real"))

@@ -336,10 +336,8 @@ def score_real(spec: rb.RealLog, config: Sequence[str] = ()) -> dict[str, Any]:
     a = np.array(rows)
     t_us = a[:, 0].astype(np.int64)
     t0 = int(min(data.imu_t_us[0], ref.t_us[0]))
-    dt = np.maximum(np.diff(data.imu_t_us), 1) * 1e-6
-    rates = data.imu_inc[1:, 0:3] / dt[:, None]
-    start_s = (spec.flight_from_s if spec.flight_from_s > 0.0
-               else rb.takeoff_s(data.imu_t_us[1:], rates) + (data.imu_t_us[1] - t0) * 1e-6)
+    start_s = rb.flight_window(data.imu_t_us, data.imu_inc, t0,
+                               spec.flight_from_s if spec.flight_from_s > 0.0 else None).from_s
     start_us = t0 + round(start_s * 1e6) if math.isfinite(start_s) else t0
     man_us = gnss_manoeuvre_s(data.gnss_t_us, data.gnss[:, 3:5], start_us)
     err, near = rb.reference_errors(t_us, a[:, 1:4],

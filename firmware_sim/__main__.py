@@ -176,8 +176,12 @@ class _DefaultsFormatter(argparse.HelpFormatter):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="firmware-sim", description=__doc__.splitlines()[0]
-                                if __doc__ else None)
+    # plain words: the module docstring's first line is reST ("``firmware-sim``")
+    p = argparse.ArgumentParser(
+        prog="firmware-sim",
+        description="firmware-sim: generate replay files from a scenario (generate), list the "
+                    "built-in scenarios (list), or send a scenario's sensor data to a running "
+                    "daemon over MAVLink UDP or DroneCAN (stream).")
     sub = p.add_subparsers(dest="command", required=True)
     g = sub.add_parser("generate", help="simulate a scenario and write imu/gnss/truth CSVs")
     g.add_argument("--scenario", required=True, help="built-in name or path to a .toml file")

@@ -128,3 +128,41 @@ def test_replay_format_lists_log_formats() -> None:
         assert f"`{fmt}`" in section[1], fmt
     for word in ("ULog", "DataFlash", "tlog", "X8"):
         assert word in section[1], word
+
+
+def test_firmware_sim_help_is_plain(capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN the firmware-sim command,
+    WHEN its top-level --help is printed,
+    THEN it has no reST markup (it showed ``firmware-sim``) and names its three commands."""
+    text = _help(sim_main, ["--help"], capsys)
+    assert not _RST.search(text), text
+    desc = " ".join(_description(text).split())
+    assert all(w in desc for w in ("generate", "list", "stream")), desc
+
+
+def test_report_help_shows_defaults(capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN the navd report command,
+    WHEN its --help is printed,
+    THEN the options with a default say it: --segment-s 30, --max-ref-gap-s 1, and what
+    --stats-from-s, --reference and --title do when not given."""
+    flat = " ".join(_help(report.main, ["--help"], capsys).split())
+    assert "(0: none; default 30.0)" in flat and "(default 1.0)" in flat, flat
+    assert "default: from the first row" in flat, flat
+    assert "default: the --log's onboard attitude" in flat, flat
+    assert "default: navd report: <solution file name>" in flat, flat
+
+
+def test_log_help_and_format_doc_name_the_inertialnav_quads(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN navd replay --help and docs/replay-format.md,
+    WHEN --log's help and the `x8` row of the log table are read,
+    THEN both name the InertialNav quad layouts (f450_glitch, quad123) besides the X8, and
+    the help says the profile follows the log's vehicle type and the RMS is printed."""
+    flat = " ".join(_help(replay.main, ["--help"], capsys).split())
+    log_help = flat.rsplit("--log FILE", 1)[1].split("--format", 1)[0]  # not the usage
+    for word in ("X8", "f450_glitch", "quad123", "vehicle type", "RMS"):
+        assert word in log_help, (word, log_help)
+    doc = (ROOT / "docs" / "replay-format.md").read_text()
+    row = next(ln for ln in doc.splitlines() if ln.startswith("| `x8` |"))
+    for word in ("X8", "f450_glitch_log.zip", "quad123.zip", "GPS.txt"):
+        assert word in row, (word, row)

@@ -38,7 +38,8 @@ def test_ac33_dataflash_gps_time_of_week_is_not_boot_time(src: Source, tmp_path:
     without a boot-time field T in the GPS message,
     WHEN it is read,
     THEN the fixes land on the IMU clock: at their boot time exactly with T, within one IMU
-    interval (10 ms) without; the reference is the whole ATT and a note mentions multirotor."""
+    interval (10 ms) without; the reference is the whole ATT and the vehicle type is the
+    firmware banner's: a multirotor."""
     p = tmp_path / "ac33.bin"
     write_dataflash_ac33(p, src, boot_time_in_gps)
     data = read_log(p)
@@ -53,7 +54,8 @@ def test_ac33_dataflash_gps_time_of_week_is_not_boot_time(src: Source, tmp_path:
         k = np.searchsorted(want, got)
         assert np.all(np.abs(got - want[np.clip(k, 0, len(want) - 1)]) <= 10_000)
     assert data.reference.source == "ATT" and len(data.reference.t_us) == len(src.ref_t_us)
-    assert any("multirotor" in n for n in data.notes), data.notes
+    assert data.vehicle == "multirotor", (data.vehicle, data.vehicle_from)
+    assert data.vehicle_from == "firmware APM:Copter V3.3-dev"
 
 
 def test_ac33_dataflash_replays_and_agrees_with_its_attitude(src: Source, tmp_path: Path,

@@ -32,7 +32,7 @@ from navd.types import NavSolution, Sample
 
 if TYPE_CHECKING:
     from navd.config import NavConfig
-    from navd.io.logs import AidingWriter
+    from navd.io.logs import AidingWriter, LogData
 
 
 class RowWriter(Protocol):
@@ -228,16 +228,21 @@ def _replay_recording(a: argparse.Namespace) -> int:
 
 
 class _Tee:
-    """The solution file's writer, plus the MCAP file when ``--mcap`` is given."""
+    """The solution file's writer, plus the MCAP file when ``--mcap`` is given, plus
+    ``extra`` (another row sink) when given."""
 
-    def __init__(self, writer: RowWriter, mcap: NavMcapWriter | None) -> None:
+    def __init__(self, writer: RowWriter, mcap: NavMcapWriter | None,
+                 extra: RowWriter | None = None) -> None:
         self._writer = writer
         self._mcap = mcap
+        self._extra = extra
 
     def write(self, sol: NavSolution) -> None:
         self._writer.write(sol)
         if self._mcap is not None:
             self._mcap.write_solution(sol, max(sol.t_us, 0) * 1000)
+        if self._extra is not None:
+            self._extra.write(sol)
 
 
 @contextlib.contextmanager
@@ -314,8 +319,14 @@ def _add_log_arguments(ap: argparse.ArgumentParser) -> None:
     d = LogOptions()
     g = ap.add_argument_group("flight logs (instead of --imu/--gnss)")
     g.add_argument("--log", metavar="FILE",
-                   help="PX4 ULog, ArduPilot DataFlash .bin, MAVLink .tlog, X8 text log (dir "
-                        "or zip) or a replay-CSV folder")
+                   help="PX4 ULog, ArduPilot DataFlash .bin, MAVLink .tlog, InertialNav text "
+                        "log (dir or zip: the X8 plane layout and the InertialNav quad layouts, "
+                        "f450_glitch with ATT.txt yaw first, quad123 with GPS.txt and no "
+                        "GPSraw.txt) or a "
+                        "replay-CSV folder.  filter.profile follows the vehicle type the log "
+                        "states (Copter -> multirotor, Plane -> fixed_wing, Rover -> ground) "
+                        "unless --set or --config sets it; at the end the roll/pitch RMS "
+                        "against the log's own attitude in flight is printed")
     g.add_argument("--format", choices=FORMATS, default=None,
                    help="log format (default: detected from the content)")
     g.add_argument("--reference-out", metavar="CSV",
@@ -358,11 +369,14 @@ def _build(a: argparse.Namespace) -> Estimator:
 
 
 def _replay_log(a: argparse.Namespace) -> int:
-    """Read a flight log into samples and replay them through :func:`run_replay`."""
+    """Read a flight log into samples and replay them through :func:`run_replay`; the filter
+    profile is the log's vehicle type unless the user set one; the tilt against the log's
+    own attitude in flight is printed at the end."""
     from navd.io.logs import LogFormatError, LogOptions, read_log, write_reference
 
     try:
-        est = _build(a)
+        tables = load_config(a.config, a.set)
+        nav = _checked(tables, a.set, from_file=bool(a.config))
     except ConfigError as exc:
         print(f"navd replay: config error: {exc}", file=sys.stderr)
         return 2
@@ -379,6 +393,9 @@ def _replay_log(a: argparse.Namespace) -> int:
         print(f"navd replay: note: {note}", file=sys.stderr)
     if data.damage is not None:
         print(f"navd replay: WARNING: {data.damage}", file=sys.stderr)
+    nav, said = log_profile(tables, nav, data.vehicle, data.vehicle_from)
+    print(f"navd replay: {said}", file=sys.stderr)
+    est = build_estimator(nav)
     if a.reference_out:
         with open(a.reference_out, "w") as fh:
             n = write_reference(data.reference, fh)
@@ -387,11 +404,85 @@ def _replay_log(a: argparse.Namespace) -> int:
               file=sys.stderr)
     out = Path(a.out)
     tmp = out.with_suffix(out.suffix + ".part")
+    tilt = _TiltRows()
     with open(tmp, "w") as fh, _aiding(a.aiding_out) as aid, _mcap(a, est) as mc:
-        rows = run_replay(est, data.samples(), _Tee(SolutionWriter(fh), mc),
+        rows = run_replay(est, data.samples(), _Tee(SolutionWriter(fh), mc, tilt),
                           50.0 if a.rate is None else a.rate, data.n_samples,
                           progress=not a.quiet, aiding=aid)
     tmp.replace(out)
     print(f"navd replay: {rows} solution rows -> {out}; course update: {est.course_status}; "
           f"estimator: {dict(est.counters)}", file=sys.stderr)
+    if rows and len(data.reference) >= 2:
+        print(f"navd replay: {tilt.agreement_line(data)}", file=sys.stderr)
+    elif rows:
+        print("navd replay: no roll/pitch RMS: the log carries no onboard attitude to compare "
+              "with", file=sys.stderr)
     return _exit_code(rows, est)
+
+
+def log_profile(tables: dict[str, Any], nav: NavConfig, vehicle: str, vehicle_from: str
+                ) -> tuple[NavConfig, str]:
+    """The configuration a log replays with, and the one line that says which profile and
+    why.  ``filter.profile`` set by the user (``--set`` or ``--config``) always stands; else
+    the profile of the vehicle type the log states (``vehicle``, from ``vehicle_from``),
+    else the configured default."""
+    filt = tables.get("filter")
+    explicit = isinstance(filt, dict) and "profile" in filt
+    have = nav.estimator.filter.profile
+    if explicit:
+        if vehicle and vehicle != have:
+            return nav, (f"profile {have} as set (filter.profile); note: the log's vehicle "
+                         f"type says {vehicle} ({vehicle_from})")
+        return nav, f"profile {have} as set (filter.profile)"
+    if vehicle:
+        if vehicle != have:
+            chosen = copy.deepcopy(tables)
+            chosen.setdefault("filter", {})["profile"] = vehicle
+            nav = DaemonConfig.from_dict(chosen, need_input=False).nav
+        return nav, (f"profile {vehicle} from the log's vehicle type ({vehicle_from}); "
+                     "--set filter.profile=... to override")
+    if vehicle_from:
+        return nav, (f"profile {have} (the default): no navd profile fits the log's vehicle "
+                     f"type ({vehicle_from}); --set filter.profile=... to choose one")
+    return nav, (f"profile {have} (the default): the log does not state its vehicle type; "
+                 "--set filter.profile=multirotor (or fixed_wing) if it flies")
+
+
+class _TiltRows:
+    """Keeps each solution row's time, roll and pitch for the closing agreement line."""
+
+    def __init__(self) -> None:
+        self.t_us: list[int] = []
+        self.roll: list[float] = []
+        self.pitch: list[float] = []
+
+    def write(self, sol: NavSolution) -> None:
+        self.t_us.append(sol.t_us)
+        self.roll.append(sol.roll_rad)
+        self.pitch.append(sol.pitch_rad)
+
+    def agreement_line(self, data: LogData) -> str:
+        """Roll/pitch RMS of navd minus the log's reference in flight, and what "in flight"
+        was (:mod:`navd.eval.flight`, the benchmarks' rule)."""
+        import numpy as np
+
+        from navd.eval.flight import FLIGHT_RULE, flight_window, tilt_agreement
+
+        ref = data.reference
+        t0 = int(min(data.imu_t_us[0], ref.t_us[0]))
+        win = flight_window(data.imu_t_us, data.imu_inc, t0)
+        ag = tilt_agreement(np.asarray(self.t_us, dtype=np.int64), np.asarray(self.roll),
+                            np.asarray(self.pitch), ref.t_us, ref.roll_rad, ref.pitch_rad, win)
+        src = ref.source or "the reference"
+        if ag.whole:
+            span = f"over the whole solution (no take-off found; {FLIGHT_RULE})"
+        else:
+            end = f"{win.to_s:.1f} s (a crash)" if np.isfinite(win.to_s) else "the end"
+            span = (f"in flight, {win.from_s:.1f} s to {end} from the log's start "
+                    f"({FLIGHT_RULE})")
+        if ag.n == 0:
+            return (f"no roll/pitch RMS vs {src}: no solution row {span} has a {src} sample "
+                    "within 0.1 s")
+        return (f"roll/pitch RMS navd - {src} {span}: {ag.roll_rms_deg:.2f} / "
+                f"{ag.pitch_rms_deg:.2f} deg over {ag.n} rows ({src} is the log's own "
+                "estimate, not truth)")

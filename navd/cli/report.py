@@ -42,19 +42,22 @@ def main(argv: list[str] | None = None) -> int:
         description=_DESCRIPTION)
     ap.add_argument("--solution", required=True, help="solution CSV from navd replay")
     ap.add_argument("--reference", help="reference attitude: CSV from --reference-out, or a "
-                                        "log (its onboard estimate)")
+                                        "log (its onboard estimate); default: the --log's "
+                                        "onboard attitude, else none")
     ap.add_argument("--aiding", help="aiding CSV from navd replay --aiding-out")
     ap.add_argument("--log", help="the flight log replayed: its IMU for the gyro consistency "
                                   "check (and its onboard attitude if no --reference)")
     ap.add_argument("--out", required=True, help="output directory (index.html, *.png)")
     ap.add_argument("--segment-s", type=float, default=30.0,
-                    help="segment length for the per-segment table, s (0: none)")
+                    help="segment length for the per-segment table, s (0: none; default "
+                         "%(default)s)")
     ap.add_argument("--stats-from-s", type=float, default=None,
                     help="statistics and segments only from this log time on, s (e.g. after "
-                         "take-off); figures show everything")
+                         "take-off; default: from the first row); figures show everything")
     ap.add_argument("--max-ref-gap-s", type=float, default=1.0,
-                    help="no error where the reference has a longer gap, s")
-    ap.add_argument("--title", help="page title")
+                    help="no error where the reference has a longer gap, s (default "
+                         "%(default)s)")
+    ap.add_argument("--title", help="page title (default: navd report: <solution file name>)")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     a = ap.parse_args(argv)
     try:

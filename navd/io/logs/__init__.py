@@ -11,7 +11,10 @@ Detection (first bytes, not the file name):
     tlog       8-byte big-endian microsecond time stamp, then a MAVLink frame (0xFE / 0xFD),
                and the next time stamp + frame where that frame says it ends
     x8         a directory or zip holding ``IMU.txt`` and ``GPSraw.txt`` or ``GPS.txt`` (the
-               InertialNav text logs: X8 plane, f450 and quad123 multirotors)
+               InertialNav text logs: X8 plane, f450 and quad123 multirotors; they do not
+               state a vehicle type, so ``navd replay`` keeps the configured profile); a
+               directory holding no log files but exactly one such zip (the dataset folders
+               ``px4-x8-flight/``: a README and the zip) reads that zip
     csv        a directory holding ``imu.csv`` and ``gnss.csv`` (docs/replay-format.md)
 """
 
@@ -72,9 +75,12 @@ def detect_format(path: str | Path) -> str:
             return "x8"
         if {"imu.csv", "gnss.csv"} <= names:
             return "csv"
+        zips = sorted(q.name for q in p.iterdir() if q.suffix.lower() == ".zip")
+        hint = (f"; it holds {', '.join(zips[:5])}{' ...' if len(zips) > 5 else ''}: give "
+                "one of those" if zips else "")
         raise LogFormatError(f"{p}: directory holds neither IMU.txt + GPSraw.txt/GPS.txt "
                              "(X8/InertialNav) nor "
-                             "imu.csv + gnss.csv (replay CSV)")
+                             f"imu.csv + gnss.csv (replay CSV){hint}")
     try:
         with open(p, "rb") as fh:
             head = fh.read(600)
@@ -101,10 +107,33 @@ def detect_format(path: str | Path) -> str:
                          f"give --format one of {', '.join(FORMATS)}")
 
 
+def _only_zip(path: str | Path) -> Path | None:
+    """The one InertialNav zip in a directory that holds no log files of its own (the
+    dataset folders: a README and the zip), else None."""
+    p = Path(path)
+    if not p.is_dir():
+        return None
+    names = {q.name for q in p.iterdir()}
+    if "IMU.txt" in names or {"imu.csv", "gnss.csv"} <= names:
+        return None
+    zips = [q for q in p.iterdir() if q.suffix.lower() == ".zip" and q.is_file()]
+    if len(zips) != 1:
+        return None
+    try:
+        return zips[0] if detect_format(zips[0]) == "x8" else None
+    except LogFormatError:
+        return None
+
+
 def read_log(path: str | Path, fmt: str | None = None,
              options: LogOptions | None = None) -> LogData:
     """Read a whole log (format detected unless ``fmt`` is given)."""
     opts = options if options is not None else LogOptions()
+    inner = _only_zip(path) if fmt in (None, "x8") else None
+    if inner is not None:  # a dataset folder (README + one zip): read its zip
+        data = read_log(inner, fmt, opts)
+        data.notes.insert(0, f"{path} holds one log, {inner.name}: read that")
+        return data
     kind = fmt or detect_format(path)
     if fmt is not None and fmt != "csv":
         # A wrong --format made the DataFlash decoder print one "bad header" line per byte

@@ -51,6 +51,33 @@ I64 = npt.NDArray[np.int64]
 FORMATS = ("csv", "ulog", "dataflash", "tlog", "x8")
 
 
+# MAVLink MAV_TYPE (HEARTBEAT.type; PX4's MAV_TYPE parameter) -> navd's filter.profile.
+# Types without a profile that fits (VTOL, which flies both ways; boats, which crab in a
+# current; airships, submarines) map to nothing: the replay then keeps the configured one.
+MAV_TYPE_PROFILE = {
+    1: "fixed_wing",                                   # FIXED_WING
+    2: "multirotor", 3: "multirotor", 4: "multirotor",  # QUADROTOR, COAXIAL, HELICOPTER
+    13: "multirotor", 14: "multirotor", 15: "multirotor",  # HEXA-, OCTO-, TRICOPTER
+    29: "multirotor", 35: "multirotor", 43: "multirotor",  # DODECA-, DECA-, GENERIC_MULTIROTOR
+    10: "ground",                                      # GROUND_ROVER
+}
+MAV_TYPE_NAMES = {
+    0: "GENERIC", 1: "FIXED_WING", 2: "QUADROTOR", 3: "COAXIAL", 4: "HELICOPTER",
+    5: "ANTENNA_TRACKER", 6: "GCS", 7: "AIRSHIP", 8: "FREE_BALLOON", 9: "ROCKET",
+    10: "GROUND_ROVER", 11: "SURFACE_BOAT", 12: "SUBMARINE", 13: "HEXAROTOR", 14: "OCTOROTOR",
+    15: "TRICOPTER", 16: "FLAPPING_WING", 17: "KITE", 18: "ONBOARD_CONTROLLER",
+    19: "VTOL_DUOROTOR", 20: "VTOL_QUADROTOR", 21: "VTOL_TILTROTOR", 22: "VTOL_RESERVED2",
+    23: "VTOL_RESERVED3", 24: "VTOL_RESERVED4", 25: "VTOL_RESERVED5", 29: "DODECAROTOR",
+    35: "DECAROTOR", 43: "GENERIC_MULTIROTOR", 47: "VTOL_GYRODYNE",
+}
+
+
+def vehicle_from_mav_type(mav_type: int, where: str) -> tuple[str, str]:
+    """(profile or "", what the log says) for a MAVLink MAV_TYPE value found at ``where``."""
+    name = MAV_TYPE_NAMES.get(mav_type, str(mav_type))
+    return MAV_TYPE_PROFILE.get(mav_type, ""), f"{where} MAV_TYPE {mav_type} ({name})"
+
+
 class LogFormatError(ValueError):
     """The file is not a readable log of the given format at all (nothing could be read)."""
 
@@ -245,7 +272,9 @@ class SampleBuilder:
 
     def build(self, fmt: str, path: str, reference: Reference,
               damage: LogDamage | None = None, notes: list[str] | None = None,
-              t_end_us: int | None = None) -> LogData:
+              t_end_us: int | None = None, vehicle: tuple[str, str] = ("", "")) -> LogData:
+        """The LogData of what was added.  ``vehicle``: (navd profile or "", what in the
+        log states the vehicle type or "") (see :attr:`LogData.vehicle`)."""
         imu_t = np.asarray(self._imu_t, dtype=np.int64)
         imu_dt = np.asarray(self._imu_dt, dtype=np.int64)
         imu_v = np.asarray(self._imu_v, dtype=np.float64).reshape(-1, 6)
@@ -266,7 +295,7 @@ class SampleBuilder:
             all_notes.append("records dropped while reading: " + ", ".join(
                 f"{k}={v}" for k, v in sorted(skipped.items())))
         return LogData(fmt, path, imu_t, imu_dt, imu_v, gnss_t, gnss_v, gnss_fix, ref, damage,
-                       all_notes)
+                       all_notes, vehicle[0], vehicle[1])
 
 
 def _quiet_logger() -> logging.Logger:
@@ -286,6 +315,10 @@ class LogData:
     gnss_t_us: (M,) int64; gnss: (M, 9) lat_rad, lon_rad, alt_m (ellipsoid), vel N/E/D (m/s),
         h_acc_m, v_acc_m, vel_acc_mps; gnss_fix: (M,) FixType values.
     reference: the log's own attitude estimate; damage: where reading stopped, if it did.
+    vehicle: the navd ``filter.profile`` of the vehicle type the log itself states
+        ("multirotor", "fixed_wing", "ground"), "" when it states none or one no profile
+        fits; vehicle_from: what in the log states it ("" when nothing does), e.g.
+        "firmware APM:Copter V3.3-dev (ae3192b8)" or "parameter MAV_TYPE 2 (QUADROTOR)".
     """
 
     fmt: str
@@ -299,6 +332,8 @@ class LogData:
     reference: Reference
     damage: LogDamage | None = None
     notes: list[str] = field(default_factory=list)
+    vehicle: str = ""
+    vehicle_from: str = ""
 
     @property
     def n_samples(self) -> int:

@@ -25,6 +25,9 @@ Messages (pymavlink applies the format multipliers, so values are in the units b
     GPA   HAcc, VAcc (m), SAcc (m/s) and, where logged, Und (geoid undulation, m) and VV
           (have vertical velocity); matched to GPS by TimeUS and instance.  Height above the
           ellipsoid = Alt + Und if Und is logged, else Alt + geoid_sep.
+    MSG   the firmware banner ("APM:Copter V3.3-dev", "ArduPlane V4.5.1", "ArduRover ..."):
+          the vehicle type (LogData.vehicle: Copter -> multirotor, Plane -> fixed_wing,
+          Rover -> ground; Sub, Tracker, Blimp -> none).
     ATT   Roll, Pitch, Yaw (deg; yaw 0..360) of the onboard AHRS/EKF as the reference
           (AHRS2, named AHR2 in the log, if there is no ATT).  ArduPilot reports the
           attitude of the *vehicle* body, which is the autopilot's (IMU) body turned by
@@ -67,8 +70,19 @@ from navd.units import DEG
 _FIX = {3: FixType.FIX_3D, 4: FixType.DGPS, 5: FixType.RTK_FLOAT, 6: FixType.RTK_FIXED}
 
 
-# words in the firmware banner (a MSG message) that name the vehicle type
-_VEHICLES = ("Copter", "Plane", "Rover", "Sub", "Tracker", "Blimp")
+# words in the firmware banner (a MSG message) that name the vehicle type, and the navd
+# profile each means ("": none fits; ArduCopter includes helicopters: rotorcraft too)
+_VEHICLES = {"Copter": "multirotor", "Plane": "fixed_wing", "Rover": "ground", "Sub": "",
+             "Tracker": "", "Blimp": ""}
+
+
+def vehicle_from_firmware(banner: str) -> tuple[str, str]:
+    """(navd profile or "", what states it) from the firmware banner MSG ("APM:Copter
+    V3.3-dev (ae3192b8)", "ArduPlane V4.5.1", "ArduRover V4.2.0"); ("", "") without one."""
+    for word, profile in _VEHICLES.items():
+        if word in banner:
+            return profile, f"firmware {banner.strip()}"
+    return "", ""
 
 
 def _time_us(m: Any) -> int | None:
@@ -351,8 +365,6 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
         ref.yaw_rad = (ref.yaw_rad + math.pi) % (2.0 * math.pi) - math.pi
     else:
         ref = Reference.empty()
-    if "Copter" in firmware:  # course over ground is not heading on a multirotor
-        notes.append(f"{firmware}: a multirotor; replay with --set filter.profile=multirotor")
     if not gpa:
         notes.append("no GPA messages: assumed GNSS accuracies from options")
     out = _summarise(sink.getvalue())
@@ -361,4 +373,5 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
     with contextlib.suppress(Exception):
         r.data_map.close()
         r.filehandle.close()
-    return b.build("dataflash", p, ref, damage, notes)
+    return b.build("dataflash", p, ref, damage, notes,
+                   vehicle=vehicle_from_firmware(firmware))

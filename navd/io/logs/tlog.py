@@ -12,6 +12,8 @@ Message choice (the most informative present, with at least 10 records):
     GNSS  GPS_INPUT > HIL_GPS > GPS_RAW_INT (which has no vertical velocity: NaN vel_d).
     reference  ATTITUDE (time_boot_ms, rad) > AHRS2 (no time field: receive time mapped to
           the IMU clock).
+    vehicle type  (LogData.vehicle) HEARTBEAT ``type`` (MAV_TYPE) of the system that sent
+          the IMU messages (ground stations, companion computers and peripherals ignored).
 Clocks: PX4 stamps HIGHRES_IMU and GPS_RAW_INT with time since boot; ArduPilot stamps
 GPS_RAW_INT with Unix time.  When the median (sensor time - receive time) of the GNSS (or
 ATTITUDE) messages differs from the IMU's by more than 1 s, their stamps are moved onto the
@@ -28,6 +30,7 @@ import dataclasses
 import io
 import math
 import statistics
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +44,7 @@ from navd.io.logs.common import (
     LogOptions,
     Reference,
     SampleBuilder,
+    vehicle_from_mav_type,
 )
 from navd.io.mavlink import MavlinkDecoder, MavlinkInputConfig
 from navd.types import GnssSample, ImuSample
@@ -98,6 +102,8 @@ def read_tlog(path: str | Path, options: LogOptions | None = None) -> LogData:
     att: list[tuple[int, int, float, float, float]] = []
     ahrs2: list[tuple[int, int, float, float, float]] = []
     damage: LogDamage | None = None
+    beats: list[tuple[int, int, int]] = []  # HEARTBEAT (system id, MAV_TYPE, autopilot)
+    imu_sys: int | None = None  # system id of the IMU messages read
     size = int(mlog.data_len)
     f = mlog.f
     f.seek(0)
@@ -126,8 +132,12 @@ def read_tlog(path: str | Path, options: LogOptions | None = None) -> LogData:
                     f"{typ} frame"))
                 break
             recv_us = round(m._timestamp * 1e6)
+            if typ == imu_msg and imu_sys is None:
+                imu_sys = int(m.get_srcSystem())
             if typ not in wanted:  # the decoder would only count it as ignored
-                if typ == "ATTITUDE":
+                if typ == "HEARTBEAT":
+                    beats.append((int(m.get_srcSystem()), int(m.type), int(m.autopilot)))
+                elif typ == "ATTITUDE":
                     att.append((int(m.time_boot_ms) * 1000, recv_us, float(m.roll),
                                 float(m.pitch), float(m.yaw)))
                 elif typ == "AHRS2":
@@ -169,7 +179,27 @@ def read_tlog(path: str | Path, options: LogOptions | None = None) -> LogData:
     out = sink.getvalue().strip()
     if out:
         notes.append("pymavlink: " + out.replace("\n", "; ")[:500])
-    return b.build("tlog", p, ref, damage, notes)
+    return b.build("tlog", p, ref, damage, notes, vehicle=_vehicle(beats, imu_sys))
+
+
+# HEARTBEAT types that are not the vehicle: generic, antenna tracker, ground station,
+# companion computer, and peripherals (gimbal .. ) that send their own heartbeat
+_NOT_A_VEHICLE = frozenset({0, 5, 6, 18, 26, 27, 30, 31, 32, 33, 34, 36, 37, 38, 39, 40, 41,
+                            42, 44, 48})
+_MAV_AUTOPILOT_INVALID = 8  # a ground station or peripheral, not a flight controller
+
+
+def _vehicle(beats: list[tuple[int, int, int]], imu_sys: int | None) -> tuple[str, str]:
+    """(navd profile or "", what states it) from the HEARTBEATs of the flight controller:
+    the system that sent the IMU messages (any system if none of its heartbeats is in the
+    log), the most common MAV_TYPE among them."""
+    own = [b for b in beats
+           if b[1] not in _NOT_A_VEHICLE and b[2] != _MAV_AUTOPILOT_INVALID]
+    mine = [b for b in own if b[0] == imu_sys] or own
+    if not mine:
+        return "", ""
+    mav_type = Counter(b[1] for b in mine).most_common(1)[0][0]
+    return vehicle_from_mav_type(mav_type, "HEARTBEAT")
 
 
 def _reference(att: list[tuple[int, int, float, float, float]],

@@ -26,6 +26,12 @@ mixed):
                         ``epv`` (m) and ``s_variance_m_s`` (m/s, a sigma despite its name) as
                         accuracies; ``fix_type`` >= 3 kept; ``vel_ned_valid`` = 0 -> NaN vel.
     vehicle_attitude    ``q[4]`` (w, x, y, z of FRD -> NED) as the reference.
+    vehicle type        (LogData.vehicle) the ``MAV_TYPE`` parameter (MAVLink MAV_TYPE: 1
+                        fixed wing, 2/3/4/13/14/15.. rotorcraft, 10 rover; VTOL types fit no
+                        profile), else ``vehicle_status``: ``is_vtol`` -> none, else
+                        ``vehicle_type`` (1 rotary wing, 2 fixed wing, 3 rover; the most
+                        common value in the log) or, before PX4 1.9, ``is_rotary_wing``
+                        (true: rotorcraft; false says nothing: a plane or a rover).
 
 Damage: before pyulog parses, the message framing (3-byte header: uint16 size, uint8 type)
 is walked from offset 16; the first unknown message type, data message for an unsubscribed
@@ -53,6 +59,7 @@ from navd.io.logs.common import (
     LogOptions,
     Reference,
     SampleBuilder,
+    vehicle_from_mav_type,
 )
 from navd.types import FixType, GnssSample, ImuSample
 from navd.units import DEG
@@ -61,7 +68,10 @@ MAGIC = b"ULog\x01\x12\x35"
 _TYPES = frozenset(b"FDIMPQARSOLCB")
 _HDR = struct.Struct("<HB")
 TOPICS = ("sensor_combined", "sensor_accel", "sensor_gyro", "vehicle_gps_position",
-          "sensor_gps", "vehicle_attitude")
+          "sensor_gps", "vehicle_attitude", "vehicle_status")
+# vehicle_status.vehicle_type (PX4 >= 1.9): ROTARY_WING 1, FIXED_WING 2, ROVER 3
+_VEHICLE_TYPE = {1: ("multirotor", "ROTARY_WING"), 2: ("fixed_wing", "FIXED_WING"),
+                 3: ("ground", "ROVER")}
 
 
 def scan_ulog(buf: bytes | memoryview) -> tuple[int, str | None]:
@@ -253,6 +263,31 @@ def _reference(d: dict[str, Any] | None) -> Reference:
     return Reference(t, r, p, y, "vehicle_attitude")
 
 
+def _vehicle(ulog: Any) -> tuple[str, str]:
+    """(navd profile or "", what states it) from the MAV_TYPE parameter or vehicle_status."""
+    params = getattr(ulog, "initial_parameters", {}) or {}
+    if "MAV_TYPE" in params:
+        with contextlib.suppress(TypeError, ValueError):
+            return vehicle_from_mav_type(int(params["MAV_TYPE"]), "parameter")
+    d = _dataset(ulog, "vehicle_status", 0)
+    if d is None:
+        return "", ""
+    vtol = _field(d, "is_vtol")
+    if vtol is not None and np.any(np.asarray(vtol) != 0):
+        return "", "vehicle_status is_vtol (a VTOL: no single profile)"
+    vt = _field(d, "vehicle_type")
+    if vt is not None and len(vt):
+        vals, counts = np.unique(np.asarray(vt, dtype=np.int64), return_counts=True)
+        v = int(vals[np.argmax(counts)])
+        profile, name = _VEHICLE_TYPE.get(v, ("", str(v)))
+        return profile, f"vehicle_status vehicle_type {v} ({name})"
+    rw = _field(d, "is_rotary_wing")
+    # false is a plane or a rover (or an old VTOL): no vehicle type stated
+    if rw is not None and len(rw) and bool(np.mean(np.asarray(rw) != 0) >= 0.5):
+        return "multirotor", "vehicle_status is_rotary_wing"
+    return "", ""
+
+
 def read_ulog(path: str | Path, options: LogOptions | None = None) -> LogData:
     from pyulog import ULog
 
@@ -304,4 +339,4 @@ def read_ulog(path: str | Path, options: LogOptions | None = None) -> LogData:
     out = sink.getvalue().strip()
     if out:
         notes.append("pyulog: " + out.replace("\n", "; "))
-    return b.build("ulog", p, ref, damage, notes)
+    return b.build("ulog", p, ref, damage, notes, vehicle=_vehicle(ulog))

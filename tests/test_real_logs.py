@@ -1,0 +1,133 @@
+"""The real flight logs through the exact ``navd replay --log`` commands of docs/results.md,
+"Real logs through `navd replay --log` (issue 16 item 3)": the profile line and the closing
+roll/pitch RMS against the log's own attitude in flight.
+
+The logs live beside the checkout in ``../shared/data`` (or ``$NAVD_DATA``), as for
+benchmarks/robustness.py; a clean clone (CI) has none and every test here skips, saying so.
+The reference attitudes are the autopilots' magnetometer-aided estimates, not truth, so the
+bounds are agreement bounds: the issue's expectation, roll and pitch within 1.5 deg RMS of
+ATT in flight (benchmarks/robustness.py, target "r/p<=1.5 vs ATT"), where navd meets it, else
+the value measured on 2026-11-26 (this commit) plus about 10 %, with the reason in the test.
+Each replay takes 2-5 s on the shared 2-core machine.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("NAVD_DATA", ROOT.parent / "shared" / "data"))
+LOG171 = DATA / "arducopter-log171" / "log171.bin"
+F450 = DATA / "inertialnav-quads" / "f450_glitch_log.zip"
+QUAD123 = DATA / "inertialnav-quads" / "quad123.zip"
+X8_DIR = DATA / "px4-x8-flight"
+
+_RMS = re.compile(r"navd replay: roll/pitch RMS navd - (?P<ref>\S+) in flight, "
+                  r"(?P<t0>[0-9.]+) s to (?P<end>.+?) from the log's start .*?: "
+                  r"(?P<roll>[0-9.]+) / (?P<pitch>[0-9.]+) deg over (?P<n>\d+) rows")
+
+
+def _replay(log: Path, tmp_path: Path, *extra: str) -> tuple[str, dict[str, str]]:
+    """Run ``navd replay --log LOG --out OUT [extra]`` as a user would (a new process); return
+    its stderr and the fields of its RMS line."""
+    if not log.exists():
+        pytest.skip(f"real log {log} not present (../shared/data beside the checkout, or "
+                    "$NAVD_DATA): a clean clone has none")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    p = subprocess.run([sys.executable, "-m", "navd", "replay", "--log", str(log), "--out",
+                        str(tmp_path / "sol.csv"), *extra], cwd=ROOT, env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr[-3000:]
+    m = _RMS.search(p.stderr)
+    assert m is not None, p.stderr[-3000:]
+    return p.stderr, m.groupdict()
+
+
+def test_log171_replays_as_the_multirotor_it_says_it_is(tmp_path: Path) -> None:
+    """GIVEN log171.bin (ArduCopter 3.3, "APM:Copter V3.3-dev"),
+    WHEN `navd replay --log log171.bin --out sol.csv` runs (no other option),
+    THEN it says the multirotor profile comes from the log's firmware, and in flight (take-off
+    at 71 s, the crash at 227.7 s) roll/pitch are within 3.9 / 4.1 deg RMS of ATT over more
+    than 7000 rows.
+
+    Measured 3.50 / 3.68 deg (7724 rows); with the ground profile the replay used before, 8.62
+    / 10.99.  The 1.5 deg expectation is not met: ATT itself leans on the magnetometer (the
+    autopilot's second estimate, AHR2, differs from it by 1.0 / 0.5 deg RMS in flight;
+    docs/results.md, "Real flight: ArduCopter 3.3 DataFlash"), and navd's roll/pitch sit
+    1.9 / 3.0 deg below ATT on average in flight, so the bound is the measured value plus
+    about 10 %."""
+    err, m = _replay(LOG171, tmp_path)
+    assert ("profile multirotor from the log's vehicle type (firmware APM:Copter V3.3-dev "
+            "(ae3192b8)); --set filter.profile=... to override") in err, err[-3000:]
+    assert m["ref"] == "ATT"
+    assert float(m["t0"]) == pytest.approx(71.0, abs=1.0)
+    assert m["end"] == "227.7 s (a crash)"
+    assert int(m["n"]) > 7000
+    assert float(m["roll"]) < 3.9 and float(m["pitch"]) < 4.1, m
+
+
+def test_quad123_agrees_with_att_once_told_it_is_a_multirotor(tmp_path: Path) -> None:
+    """GIVEN quad123.zip (InertialNav text log: no vehicle type in it),
+    WHEN `navd replay --log quad123.zip --out sol.csv` runs, then again with
+    `--set filter.profile=multirotor`,
+    THEN the first keeps the default ground profile and says the log states no vehicle type,
+    roll/pitch within 2.6 / 3.0 deg RMS of ATT in flight (from 4.0 s); the second meets the
+    issue's 1.5 deg on both axes.
+
+    Measured 2.29 / 2.71 deg (ground) and 0.57 / 1.04 deg (multirotor) over 31503 rows; the
+    ground bound is the measured value plus about 10 % (the ground profile takes the GNSS
+    course as heading, which a hovering quad's course is not)."""
+    err, m = _replay(QUAD123, tmp_path)
+    assert "profile ground (the default): the log does not state its vehicle type" in err
+    assert m["ref"] == "ATT.txt" and float(m["t0"]) == pytest.approx(4.0, abs=0.1)
+    assert int(m["n"]) > 30000
+    assert float(m["roll"]) < 2.6 and float(m["pitch"]) < 3.0, m
+    err, m = _replay(QUAD123, tmp_path, "--set", "filter.profile=multirotor")
+    assert "profile multirotor as set (filter.profile)" in err
+    assert float(m["roll"]) < 1.5 and float(m["pitch"]) < 1.5, m
+
+
+def test_f450_glitch_replays_and_prints_its_rms(tmp_path: Path) -> None:
+    """GIVEN f450_glitch_log.zip (InertialNav quad, ATT.txt stored yaw first, GNSS velocity
+    glitches to 50 m/s),
+    WHEN `navd replay --log f450_glitch_log.zip --out sol.csv --set filter.profile=multirotor`
+    runs,
+    THEN the RMS line covers the flight from 10.1 s, roll/pitch within 13.0 / 9.9 deg RMS.
+
+    Measured 11.76 / 8.98 deg (multirotor; 12.91 / 8.92 with the default ground profile).
+    Far from 1.5 deg, and not a navd figure alone: this ATT does not follow the log's own
+    gyros (roll/pitch rate correlation -0.44 / 0.27, against 0.85 / 0.74 for quad123;
+    docs/results.md, "Which real-log references are usable"), so the bound is the measured
+    value plus about 10 %: a guard against a reader or replay regression, not an accuracy
+    claim."""
+    _, m = _replay(F450, tmp_path, "--set", "filter.profile=multirotor")
+    assert m["ref"] == "ATT.txt" and float(m["t0"]) == pytest.approx(10.1, abs=0.1)
+    assert int(m["n"]) > 5000
+    assert float(m["roll"]) < 13.0 and float(m["pitch"]) < 9.9, m
+
+
+def test_x8_folder_replays_and_prints_its_rms(tmp_path: Path) -> None:
+    """GIVEN the px4-x8-flight folder (a README and InputFilesPX4.zip, a fixed wing),
+    WHEN `navd replay --log px4-x8-flight --out sol.csv` runs on the folder itself,
+    THEN it reads the zip (saying so), keeps the default ground profile (the log states no
+    vehicle type), and roll/pitch are within 6.0 / 6.4 deg RMS of ATT from 0.0 s on.
+
+    Measured 5.39 / 5.74 deg (4950 rows).  "In flight" starts at 0.0 s because the aircraft
+    is carried and turned by hand until its launch at 16.5 s (gyro spread 2-24 deg/s: the
+    gyro rule cannot tell a hand from the air; benchmarks/robustness.py fixes its X8 row at
+    20 s; from 20 s this replay gives 5.96 / 6.30).  ATT.txt is a 2013 onboard estimate
+    through loops and rolls, and navd's roll/pitch sit 2.7 / 3.7 deg below it on average
+    (docs/results.md, "Real flight: X8"), so the bound is the measured value plus about
+    10 %."""
+    err, m = _replay(X8_DIR, tmp_path)
+    assert "holds one log, InputFilesPX4.zip: read that" in err, err[-3000:]
+    assert "profile ground (the default): the log does not state its vehicle type" in err
+    assert m["ref"] == "ATT.txt" and float(m["t0"]) == 0.0 and m["end"] == "the end"
+    assert int(m["n"]) > 4500
+    assert float(m["roll"]) < 6.0 and float(m["pitch"]) < 6.4, m
