@@ -53,7 +53,8 @@ def test_member_kernels_match_finite_difference_jacobians_and_a_textbook_ekf(d: 
     """GIVEN a member state (vN, vE, d, r, bN, bE) with a random covariance, a specific-force
     increment a over T and a lever-arm velocity u (main frame),
     WHEN predict_member and update_member run in the bank buffer,
-    THEN the predicted state is f(x) and its covariance F P F^T + Q, and the updated
+    THEN the predicted state is f(x) and its covariance F P F^T + Q (F's offset column on
+    the increment's part above its noise, sqrt(1 - 2 q_n / |a|^2) of it), and the updated
     state/covariance/NIS are the textbook EKF's, with F and H the central-difference
     Jacobians of the nonlinear model (member_f, member_h), to 1e-7 relative."""
     rng = np.random.default_rng(int(1000 * (d + 3)))
@@ -73,7 +74,10 @@ def test_member_kernels_match_finite_difference_jacobians_and_a_textbook_ekf(d: 
     fx = np.zeros(6)
     yk.member_f(x, a_n, a_e, T, fx)
     q_ve = q_v + P[2, 2] * q_n  # the measured increment's noise turned by the offset
-    Pp = F @ P @ F.T + np.diag([q_ve, q_ve, q_d, q_r, q_b, q_b])
+    # the covariance's Jacobian turns only the increment's part above its noise with d
+    Fc = F.copy()
+    Fc[0:2, 2] *= math.sqrt(1.0 - 2.0 * q_n / (a_n * a_n + a_e * a_e))
+    Pp = Fc @ P @ Fc.T + np.diag([q_ve, q_ve, q_d, q_r, q_b, q_b])
     np.testing.assert_allclose(bb[o:o + n], fx, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(bb[o + yk.M_P:o + yk.M_P + n * n].reshape(n, n), Pp,
                                rtol=1e-7, atol=1e-12)

@@ -74,7 +74,8 @@ _RESULT = 9  # last bank_fix result
 _ALIGNED_T = 10  # t_us of the last alignment
 _SD_V = 11  # the last fix's per-axis horizontal speed sigma (m/s)
 _HOLD_TILT = 12  # 1: this epoch's GNSS updates leave tilt and IMU biases alone (holds_tilt)
-_NS = 13
+_SD_PREV = 13  # the composite sigma after the previous epoch (rad)
+_NS = 14
 
 
 def bank_enabled(cfg: EstimatorConfig) -> bool:
@@ -252,6 +253,8 @@ class YawBank:
         c = self.c
         off = self.offset
         sd = self.sd
+        sd_prev = s[_SD_PREV]
+        s[_SD_PREV] = sd
         trusted = sd <= c.trust_sd
         if state == SEARCH:
             if not trusted:
@@ -267,7 +270,15 @@ class YawBank:
         p22 = float(est.P[2, 2])
         comb = math.sqrt(max(float(self.buf[yk.H_VAR]), 0.0) + p22)
         if state == TRIAL:
-            if not trusted or abs(yk.wrap(off - s[_AGREE_REF])) > max(c.agree, 1.5 * sd):
+            # a sigma that grew past trust_sd by propagation alone (a straight leg or a
+            # hover: yaw noise, no evidence) has not been contradicted; one that an excited
+            # epoch widened (weights spreading) or far past it has (multirotor_manoeuvre
+            # seed 47: 9.9 -> 10.06 deg over 12 s of hover, and the next leg's first epoch
+            # failed the trial and threw the converged weights away: aligned 19 s after
+            # the first leg instead of 5 s)
+            lost = sd > c.trust_sd and ((res == yk.WEIGHTED and sd > sd_prev)
+                                        or sd > 1.5 * c.trust_sd)
+            if lost or abs(yk.wrap(off - s[_AGREE_REF])) > max(c.agree, 1.5 * sd):
                 self._fail_trial(est, "yaw_bank_trial_failed_bank")
                 return
             self._agree_step(t, off, res)

@@ -234,6 +234,15 @@ def predict_member(bb: Arr, o: int, a_n: float, a_e: float, T: float, q_v: float
     # P_dd x (its variance) to each axis (the EKF's linearisation would otherwise take the
     # noise for acceleration, and yaw information from it)
     q_v = q_v + bb[p + 2 * NX + 2] * q_noise
+    # ... and the information on d an interval gives is |a|^2 less its noise (2 q_noise in
+    # expectation), not |a|^2: d's column of the Jacobian takes a shrunk by
+    # sqrt(1 - 2 q_noise / |a|^2) (zero for an increment that noise alone explains).  The
+    # state itself moves by all of a.
+    a2 = a_n * a_n + a_e * a_e
+    kap = 1.0 - 2.0 * q_noise / a2 if a2 > 0.0 else 0.0
+    kap = math.sqrt(kap) if kap > 0.0 else 0.0
+    dn *= kap
+    de *= kap
     # rows of F P: row0 = P0 - de P2 + T P4, row1 = P1 + dn P2 + T P5, row2 = P2 + T P3
     for j in range(NX):
         p2 = bb[p + 2 * NX + j]
