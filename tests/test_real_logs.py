@@ -53,15 +53,18 @@ def test_log171_replays_as_the_multirotor_it_says_it_is(tmp_path: Path) -> None:
     """GIVEN log171.bin (ArduCopter 3.3, "APM:Copter V3.3-dev"),
     WHEN `navd replay --log log171.bin --out sol.csv` runs (no other option),
     THEN it says the multirotor profile comes from the log's firmware, and in flight (take-off
-    at 71 s, the crash at 227.7 s) roll/pitch are within 3.9 / 4.1 deg RMS of ATT over more
+    at 71 s, the crash at 227.7 s) roll/pitch are within 4.45 / 2.1 deg RMS of ATT over more
     than 7000 rows.
 
-    Measured 3.50 / 3.68 deg (7724 rows); with the ground profile the replay used before, 8.62
-    / 10.99.  The 1.5 deg expectation is not met: ATT itself leans on the magnetometer (the
+    Measured 4.04 / 1.89 deg (7724 rows) since the yaw bank's Jacobian takes only the
+    increment's part above its noise (docs/results.md, session 2026-11-26; 3.50 / 3.68
+    before, so roll is worse and pitch better by more, RSS 5.08 -> 4.46); with the ground
+    profile the replay used before, 8.62 / 10.99.  The 1.5 deg expectation is not met: ATT
+    itself leans on the magnetometer (the
     autopilot's second estimate, AHR2, differs from it by 1.0 / 0.5 deg RMS in flight;
-    docs/results.md, "Real flight: ArduCopter 3.3 DataFlash"), and navd's roll/pitch sit
-    1.9 / 3.0 deg below ATT on average in flight, so the bound is the measured value plus
-    about 10 %."""
+    docs/results.md, "Real flight: ArduCopter 3.3 DataFlash"), and navd's own gyro bias
+    drifts in flight (docs/results.md, "σ honesty on the real logs"), so the bound is the
+    measured value plus about 10 %."""
     err, m = _replay(LOG171, tmp_path)
     assert ("profile multirotor from the log's vehicle type (firmware APM:Copter V3.3-dev "
             "(ae3192b8)); --set filter.profile=... to override") in err, err[-3000:]
@@ -69,7 +72,7 @@ def test_log171_replays_as_the_multirotor_it_says_it_is(tmp_path: Path) -> None:
     assert float(m["t0"]) == pytest.approx(71.0, abs=1.0)
     assert m["end"] == "227.7 s (a crash)"
     assert int(m["n"]) > 7000
-    assert float(m["roll"]) < 3.9 and float(m["pitch"]) < 4.1, m
+    assert float(m["roll"]) < 4.45 and float(m["pitch"]) < 2.1, m
 
 
 def test_quad123_agrees_with_att_once_told_it_is_a_multirotor(tmp_path: Path) -> None:

@@ -91,7 +91,7 @@ def test_report_renders_and_every_png_exists(replayed: Path,
 def test_report_shows_the_yaw_bank_when_it_runs(src: Source, replayed: Path,
                                                 tmp_path: Path) -> None:
     """GIVEN the simulated X8 log replayed with the yaw bank forced on (issue 15), and the
-    fixture's replay with the fixed_wing profile's default (bank off),
+    fixture's replay (the profile the X8 folder gets by default, ground: no bank),
     WHEN the aiding files are read and reports built from them,
     THEN the bank's aiding columns carry its state (search/trial/aligned), a finite yaw,
     sigma and weight, and cumulative trial counts; the page and summary.json show the bank's

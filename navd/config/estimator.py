@@ -174,7 +174,8 @@ class MctlsSection:
 class YawBankSection:
     """Heading from motion (navd/core/aiding/yaw_bank.py, docs/design.md §4.1)."""
 
-    # "auto": on for the multirotor profile (navd/core/aiding/yaw_bank.py, bank_enabled)
+    # "auto": on for the multirotor and fixed_wing profiles (navd/core/aiding/yaw_bank.py,
+    # bank_enabled)
     enabled: str = _f("auto", choices=("auto", "on", "off"))
     members: int = _f(8)
     # unmodelled horizontal specific force per member (tilt error x g, vibration, m/s^2)
@@ -206,6 +207,10 @@ class YawBankSection:
     trial_timeout: float = _f(30.0, "s")
     # the main filter's heading sigma at alignment is at least this
     aligned_sd: float = _f(4.0, "deg")
+    # once aligned by the bank, the heading stays called aligned only while its sigma is at
+    # most this (or the sigma it was aligned with, if larger): a fixed wing's heading sigma
+    # grows on straight legs between the turns that observe it
+    max_aligned_sd: float = _f(6.0, "deg")
     # per-epoch NIS cap in the weight update (an outlier epoch costs no member more than
     # this) and the floor of a member's log weight below the best (nats): no hypothesis is
     # ever lost for good

@@ -75,18 +75,19 @@ _ALIGNED_T = 10  # t_us of the last alignment
 _SD_V = 11  # the last fix's per-axis horizontal speed sigma (m/s)
 _HOLD_TILT = 12  # 1: this epoch's GNSS updates leave tilt and IMU biases alone (holds_tilt)
 _SD_PREV = 13  # the composite sigma after the previous epoch (rad)
-_NS = 14
+_ALIGNED_SD = 14  # the main heading's sigma when the last trial ended in alignment (rad)
+_NS = 15
 
 
 def bank_enabled(cfg: EstimatorConfig) -> bool:
     """Whether the estimator runs a yaw bank: ``[yaw_bank] enabled``, where "auto" means the
-    multirotor profile (its course says nothing about heading).  Not fixed_wing yet: there
-    the main filter's tilt, accelerometer-bias and z-gyro-bias estimates with an
-    uncalibrated consumer IMU go several sigma wrong in turns after alignment, and 28 of
-    100 fixed_wing_wind seeds are then > 10 deg off while aligned (the course checks give
-    0, later; docs/results.md, "Yaw bank" sections); "on" enables it for any profile."""
+    multirotor profile (its course says nothing about heading) and the fixed_wing profile
+    (its course differs from its heading by the crab angle; turns show the heading).
+    fixed_wing_wind, 100 seeds: aligned <= 7.6 s after the first turn, 0 aligned > 10 deg
+    off, 1.12 deg RMS, 0 % beyond 3 sigma, where the course checks alone align after ~63 s
+    (docs/results.md, session 2026-11-26); "on" enables it for any profile."""
     e = cfg.yaw_bank.enabled
-    return e == "on" or (e == "auto" and cfg.filter.profile == "multirotor")
+    return e == "on" or (e == "auto" and cfg.filter.profile in ("multirotor", "fixed_wing"))
 
 
 class YawBank:
@@ -297,6 +298,7 @@ class YawBank:
                     s[_DIS_T0] = -1.0
                     s[_LAST_AGREE_T] = t
                     s[_ALIGNED_T] = t
+                    s[_ALIGNED_SD] = math.sqrt(p22)
                     est.heading_aligned = True
                     est.counters["yaw_bank_aligned"] += 1
             elif (t - s[_TRIAL_T0]) * 1e-6 > c.trial_timeout:
@@ -318,6 +320,13 @@ class YawBank:
             if est.heading_aligned:
                 est.heading_aligned = False
                 est.counters["yaw_bank_suspect"] += 1
+        elif p22 > max(c.max_aligned_sd, s[_ALIGNED_SD]) ** 2:
+            # honest but grown too wide to be called aligned (a fixed wing's straight legs
+            # between the turns that observe its heading): above max_aligned_sd, or above
+            # the sigma the trial ended with, whichever is larger
+            if est.heading_aligned:
+                est.heading_aligned = False
+                est.counters["yaw_bank_sd_unflagged"] += 1
         elif not est.heading_aligned and trusted and abs(off) <= 1.5 * comb:
             est.heading_aligned = True
         if trusted and abs(off) > max(3.0 * comb, c.agree):
