@@ -196,6 +196,25 @@ def test_multirotor_profile_aligns_and_stays_within_3_sigma() -> None:
     assert np.mean(np.abs(err[aligned]) > 3.0 * sd[aligned]) <= 0.05
 
 
+@pytest.mark.parametrize("seed", [42, 63])
+def test_fixed_wing_default_aligns_in_turns_and_unflags_a_widening_heading(seed: int) -> None:
+    """GIVEN fixed_wing_wind seeds 42 and 63 (consumer IMU, 3-10 m/s wind, crab up to 30 deg;
+    with the bank on before the sigma rule they were flagged aligned while 10-11 deg off at a
+    6.7-8.3 deg sigma on the straight legs between turns),
+    WHEN they run with the default config's fixed_wing profile (bank on by default),
+    THEN the bank runs, the heading is aligned within 10 s of the first turn (15 s), never
+    more than 10 deg off while aligned, and the flag is dropped at least once for a sigma
+    grown past max_aligned_sd (counted)."""
+    run = consumer("fixed_wing_wind", seed)
+    e = Estimator(cfg("filter.profile=fixed_wing"))
+    assert e.yaw_bank is not None
+    t, err, sd, aligned = _aligned_errors(run, e)
+    assert aligned.any() and t[aligned][0] < 25.0
+    assert np.all(np.abs(err[aligned]) < math.radians(10.0))
+    assert np.all(sd[aligned] <= math.radians(6.0) + 1e-9)
+    assert e.counters.get("yaw_bank_sd_unflagged", 0) >= 1
+
+
 @pytest.mark.parametrize("seed", [3, 12])
 def test_a_turn_at_unknown_heading_is_not_taken_for_tilt(seed: int) -> None:
     """GIVEN fixed_wing_wind's first 25 s (consumer IMU, straight and level, then the first
