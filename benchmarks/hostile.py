@@ -12,6 +12,10 @@ another, each for ``--storm-s`` seconds with a quiet interval between, each boun
   garbage     280-byte datagrams at 10 Mbit/s from one address: random bytes, FE/FD-dense
               junk ("FE 01 FD" repeated, the scanner's worst pattern) and real frames with
               their CRC broken
+  garbage_ports  280-byte "FE 01 FD" datagrams at 10 Mbit/s from 127.0.0.1 (the real
+              sender's host), on a new source port every 25 datagrams (7 kB: no one
+              address goes over its junk budget)
+  garbage_hosts  the same from a new source host (127.0.x.y) every 25 datagrams
   foreign     sysid 7 sends plausible false data on the real clock, 5 ms after each real
               sample: IMU of another stretch of road and the real fixes with the velocity
               reversed (the probe that drove yaw to 178 deg)
@@ -29,7 +33,7 @@ put into the input is not navd's),
 estimator resets, attitude error against simulator truth at the output's sensor time (max
 |roll|, |pitch|, RMS and max |yaw|), RSS after the storm, and the storm's own counters.
 
-Targets: floods (oversize, garbage) <= 20 % of a core, no gap > 100 ms, no reset; foreign
+Targets: floods (oversize, garbage*) <= 20 % of a core, no gap > 100 ms, no reset; foreign
 changes nothing (errors as the baseline's, 0 resets); timestamp storm <= 1 reset.
 """
 
@@ -61,7 +65,12 @@ from firmware_sim.stream import mavlink_events, timed_samples
 from firmware_sim.transport.mavlink_tx import MavlinkTx
 from navd.types import GnssSample, ImuSample
 
-STORMS = ("baseline", "oversize", "garbage", "foreign", "timestamps", "dronecan")
+STORMS = ("baseline", "oversize", "garbage", "garbage_ports", "garbage_hosts", "foreign",
+          "timestamps", "dronecan")
+FLOODS = ("oversize", "garbage", "garbage_ports", "garbage_hosts")
+# the rotating storms: datagrams per source port / host, and how the source changes
+PER_SOURCE = 25
+ROTATE = {"garbage_ports": "port", "garbage_hosts": "host"}
 FLOOD_BPS = 10e6  # bits per second of the floods
 QUIET_S = 4.0  # between storms: the daemon settles, the next window starts clean
 WARMUP_S = 20.0  # sensor seconds before the first storm: levelling, heading alignment
@@ -122,6 +131,10 @@ def storm_frames(name: str, run: SimRun, t0_us: int, dur_us: int) -> list[tuple[
         step = 1e6 / per_s
         n = int(dur_us / step)
         out = [(t0_us + round(k * step), pool[k % len(pool)]) for k in range(n)]
+    elif name in ROTATE:
+        junk = (b"\xfe\x01\xfd" * 94)[:280]
+        step = 1e6 * len(junk) * 8 / FLOOD_BPS
+        out = [(t0_us + round(k * step), junk) for k in range(int(dur_us / step))]
     elif name == "foreign":
         tx = MavlinkTx(7, 1)
         off = 300_000_000  # another stretch of the same road
@@ -148,12 +161,16 @@ def storm_frames(name: str, run: SimRun, t0_us: int, dur_us: int) -> list[tuple[
 
 
 class Pacer(threading.Thread):
-    """Sends (sensor-clock time us, datagram) lists at real time from a shared origin."""
+    """Sends (sensor-clock time us, datagram) lists at real time from a shared origin;
+    ``rotate`` ("port" or "host"): from a new source port (127.0.0.1) or source host
+    (127.0.x.y) every PER_SOURCE datagrams."""
 
     def __init__(self, frames: list[tuple[int, bytes]], addr: tuple[str, int],
-                 wall0: float, t0_us: int) -> None:
+                 wall0: float, t0_us: int, rotate: str | None = None) -> None:
         super().__init__(daemon=True)
         self.frames, self.addr, self.wall0, self.t0_us = frames, addr, wall0, t0_us
+        self.rotate = rotate
+        self.sources = 0
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sent = 0
         self.errors = 0
@@ -162,8 +179,18 @@ class Pacer(threading.Thread):
         # stalled sender (this machine's load) shows up as an output gap that is not navd's
         self.late: list[tuple[float, float]] = []
 
+    def _next_source(self) -> None:
+        j = self.sources
+        self.sources += 1
+        self.sock.close()
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        host = "127.0.0.1" if self.rotate == "port" else f"127.0.{1 + j // 250}.{1 + j % 250}"
+        self.sock.bind((host, 0))  # the kernel picks a free port
+
     def run(self) -> None:
-        for t, f in self.frames:
+        for k, (t, f) in enumerate(self.frames):
+            if self.rotate is not None and k % PER_SOURCE == 0:
+                self._next_source()
             due = self.wall0 + (t - self.t0_us) * 1e-6
             if due > self.stop_at:
                 break
@@ -272,7 +299,7 @@ def main(argv: list[str] | None = None) -> int:
                 if navd.proc.poll() is not None:
                     break
                 c0, h0 = cpu_s(navd.proc.pid), time.monotonic()
-                p = Pacer(storms[n], addr, wall0, t0_us)
+                p = Pacer(storms[n], addr, wall0, t0_us, ROTATE.get(n))
                 p.start()
                 time.sleep(max(0.0, start + a.storm_s - time.monotonic()))
                 p.stop_at = time.monotonic()
@@ -292,7 +319,7 @@ def main(argv: list[str] | None = None) -> int:
                          for k, v in (after.get("clock") or {}).items()
                          if isinstance(v, int)}
                 late = [d for h, d in sender.late if h0 <= h < h1]
-                r = {"sent": p.sent, "send_errors": p.errors,
+                r = {"sent": p.sent, "send_errors": p.errors, "sources": max(1, p.sources),
                      "real_sender_late_max_ms": round(max(late, default=0.0) * 1e3, 1),
                      "load_avg": os.getloadavg()[0],
                      "mbit_per_s": round(sum(len(f) for _, f in storms[n][:p.sent]) * 8
@@ -332,7 +359,7 @@ def main(argv: list[str] | None = None) -> int:
 def _verdicts(results: dict[str, Any]) -> None:
     s = results["storms"]
     base = s.get("baseline")
-    for n in ("oversize", "garbage"):
+    for n in FLOODS:
         if n in s:
             r = s[n]
             r["target_met"] = (r["cpu_pct_one_core"] <= 20.0 and r["longest_gap_ms"] <= 100.0
@@ -347,18 +374,18 @@ def _verdicts(results: dict[str, Any]) -> None:
 
 
 def _table(results: dict[str, Any]) -> None:
-    hdr = (f"{'storm':<11} {'sent':>7} {'Mbit/s':>7} {'CPU %':>6} {'out Hz':>7} "
+    hdr = (f"{'storm':<13} {'sent':>7} {'Mbit/s':>7} {'CPU %':>6} {'out Hz':>7} "
            f"{'gap ms':>7} {'late ms':>7} {'resets':>6} {'r/p max':>8} {'yaw rms':>8} "
            f"{'yaw max':>8} "
            f"{'RSS MB':>7} {'target':>7}")
     print(hdr)
     for n, r in results["storms"].items():
         if n == "dronecan":
-            print(f"{n:<11} {r['frames']:>7} (in-process decoder: {r['us_per_frame']} us per "
+            print(f"{n:<13} {r['frames']:>7} (in-process decoder: {r['us_per_frame']} us per "
                   f"malformed frame, {r['samples_out']} samples out)")
             continue
         met = r.get("target_met")
-        print(f"{n:<11} {r['sent']:>7} {r['mbit_per_s']:>7} {r['cpu_pct_one_core']:>6} "
+        print(f"{n:<13} {r['sent']:>7} {r['mbit_per_s']:>7} {r['cpu_pct_one_core']:>6} "
               f"{r['output_hz']:>7} {r['longest_gap_ms']:>7} "
               f"{r['real_sender_late_max_ms']:>7} {r['resets']:>6} "
               f"{r['max_roll_pitch_deg']:>8} {r['yaw_rms_deg']:>8} {r['yaw_max_deg']:>8} "

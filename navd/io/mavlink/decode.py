@@ -314,6 +314,24 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
             self._account(rj, "datagram", len(data))
         return out
 
+    def feed_whole(self, data: bytes, recv_t_us: int) -> list[Sample] | None:
+        """:meth:`feed_datagram` for a datagram that is exactly one valid frame, at a cost
+        that does not depend on its content (one checksum over at most 280 bytes); None,
+        and nothing counted, for any other datagram (the caller drops it unscanned: a muted
+        sender, see :class:`navd.io.mavlink.link.MavlinkUdpProtocol`)."""
+        f = self._scanner.whole(data) if len(data) <= MAX_FRAME_BYTES else None
+        if f is None:
+            return None
+        c = self._counts
+        c["datagrams"] = c.get("datagrams", 0) + 1
+        self.last_junk = 0
+        try:
+            s = self._on_frame(f, recv_t_us)
+        except Exception as exc:  # wire input must never kill the daemon
+            self._reject("parser_error", "%s: %s", type(exc).__name__, exc)
+            return []
+        return [] if s is None else [s]
+
     def _decode(self, frames: Iterable[Frame], rj: Rejects, recv_t_us: int) -> list[Sample]:
         out: list[Sample] = []
         try:

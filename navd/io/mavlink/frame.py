@@ -5,8 +5,11 @@ computes the checksum in Python; one 64 kB datagram of 0xFE cost ~0.5 s (issue 1
 every input byte is examined a bounded number of times:
 
 * junk between frames is skipped with one C-level regular-expression search for the next
-  start marker that could begin a frame (0xFE, or 0xFD followed by a length and a known
-  incompatibility flag);
+  place that could begin a frame: 0xFE with a length some MAVLink 1 message can have and
+  the id of a MAVLink 1 message, or 0xFD with no unknown incompatibility flag and the id of
+  a known message (or either too close to the end to tell).  FE/FD-dense junk ("FE 01 FD"
+  repeated) so costs the C search, not a Python step per start byte; only places that pass
+  this filter reach Python, and a rejected one resumes the search one byte on;
 * a candidate frame costs O(1) Python steps plus one C-level checksum over at most 278
   bytes (``binascii.crc_hqx`` on bit-reversed bytes gives MAVLink's reflected X.25 CRC);
 * a rejected candidate advances the scan by one byte, an accepted frame by its length;
@@ -23,7 +26,7 @@ from __future__ import annotations
 
 import binascii
 import re
-from collections.abc import Callable, Generator, Iterator, Mapping
+from collections.abc import Callable, Generator, Iterable, Iterator, Mapping
 from typing import NamedTuple
 
 __all__ = ["HEADER_V1", "HEADER_V2", "MAX_FRAME_BYTES", "SIGNATURE_LEN", "STX_V1", "STX_V2",
@@ -37,10 +40,44 @@ SIGNATURE_LEN = 13  # link id, 48-bit timestamp, 48-bit signature
 IFLAG_SIGNED = 0x01
 MAX_FRAME_BYTES = HEADER_V2 + 255 + 2 + SIGNATURE_LEN  # 280
 
-# A frame can start at 0xFE (MAVLink 1: any header is possible) or at 0xFD whose
-# incompatibility flags (third byte) hold no flag but "signed".  A 0xFD too close to the
-# end to show its flags is a candidate as well (a byte stream may complete it).
-_START = re.compile(rb"\xfe|\xfd.[\x00\x01]|\xfd.?\Z", re.DOTALL)
+
+def _byte_class(values: Iterable[int]) -> bytes:
+    return b"[" + b"".join(re.escape(bytes((v,))) for v in sorted(set(values))) + b"]"
+
+
+def _start_pattern(crc_extra: Mapping[int, int], v1_lengths: Mapping[int, int]
+                   ) -> re.Pattern[bytes]:
+    """Where a frame may start, as one C-level search (see the module docstring).
+
+    MAVLink 1: 0xFE, a payload length, 3 bytes, the id of a message that may have that
+    length (one alternative per length, each opening with its length byte, which the
+    regular-expression engine tests before entering it; a look-ahead first refuses a length
+    no message has).  MAVLink 2: 0xFD, any length, incompatibility flags 0 or "signed", 4
+    bytes, then low, middle and high byte of the id each one that some known id has (the
+    exact id is looked up in Python).  Start bytes within 9 bytes of the end are not found
+    here (:meth:`FrameScanner._scan` looks at those itself)."""
+    alts = []
+    by_len: dict[int, list[int]] = {}
+    for m, mask in v1_lengths.items():
+        if 0 <= m < 256:
+            for n in range(256):
+                if mask >> n & 1:
+                    by_len.setdefault(n, []).append(m)
+    if by_len:
+        alts.append(rb"\xfe(?=" + _byte_class(by_len) + rb")(?:"
+                    + b"|".join(re.escape(bytes((n,))) + rb".{3}" + _byte_class(ids)
+                                for n, ids in sorted(by_len.items())) + b")")
+    ids24 = [m for m in crc_extra if 0 <= m < 1 << 24]
+    if ids24:
+        alts.append(rb"\xfd.[\x00\x01].{4}" + _byte_class(m & 0xFF for m in ids24)
+                    + _byte_class(m >> 8 & 0xFF for m in ids24)
+                    + _byte_class(m >> 16 for m in ids24))
+    return re.compile(b"|".join(alts) if alts else rb"(?!)", re.DOTALL)
+
+
+# a start byte: the places near the end of a buffer the start pattern cannot judge
+_MARK = re.compile(rb"[\xfd\xfe]")
+_NEAR_END = HEADER_V2 - 1  # a start byte closer than this to the end: not judged by _START
 
 _REV8 = bytes(int(f"{i:08b}"[::-1], 2) for i in range(256))
 _REV8_HI = tuple(_REV8[i] << 8 for i in range(256))
@@ -124,6 +161,9 @@ class FrameScanner:
                            if v1_lengths is not None else
                            {k: (2 << v) - 1 for k, v in max_len.items() if k < 256})
         self.check_frame = check_frame
+        self._start = _start_pattern(self.crc_extra, self.v1_lengths)
+        # message id -> its CRC_EXTRA bit-reversed, as the one byte the checksum runs over
+        self._rev_extra = {k: _REV8[v:v + 1] for k, v in self.crc_extra.items()}
         self._tail = b""
 
     def reset(self) -> None:
@@ -187,31 +227,51 @@ class FrameScanner:
             return None
         return f
 
+    def _skip_reason(self, buf: bytes, p: int) -> str:
+        """Why the start byte at ``p`` (at least 9 bytes from the end), passed over by the
+        start search, begins no frame."""
+        if buf[p] == STX_V2:
+            return "bad_frame" if buf[p + 2] & ~IFLAG_SIGNED else "unknown_msgid"
+        return "bad_frame" if buf[p + 5] in self.crc_extra else "unknown_msgid"
+
     def _scan(self, buf: bytes, final: bool, rj: Rejects) -> Generator[Frame, None, int]:
         """Yield the frames in ``buf``; return where an unfinished frame starts (``final``:
         there is none, the whole buffer is consumed)."""
         n = len(buf)
         p = 0
-        search = _START.search
-        crc_table = self.crc_extra
+        search = self._start.search
+        near_end = n - _NEAR_END
+        rev = buf.translate(_REV8)  # the checksum runs on bit-reversed bytes
+        rev_extra = self._rev_extra
         v1_lens = self.v1_lengths
         check = self.check_frame
+        crc = binascii.crc_hqx
         while p < n:
-            b0 = buf[p]
-            if b0 != STX_V1 and (b0 != STX_V2 or (p + 2 < n and buf[p + 2] & ~IFLAG_SIGNED)):
-                m = search(buf, p + 1) if b0 in (STX_V1, STX_V2) else search(buf, p)
-                q = n if m is None else m.start()
+            m = search(buf, p)
+            q = n if m is None else m.start()
+            if q > near_end:  # a start byte too near the end for the search to judge?
+                m = _MARK.search(buf, max(p, near_end))
+                if m is not None and m.start() < q:
+                    q = m.start()
+            if q != p:  # bytes that cannot begin a frame: one run of junk, skipped in C
                 rj.junk_bytes += q - p
-                rj.note("bad_prefix" if b0 not in (STX_V1, STX_V2) else "bad_frame")
+                b0 = buf[p]
+                rj.note("bad_prefix" if b0 != STX_V1 and b0 != STX_V2
+                        else self._skip_reason(buf, p))
                 p = q
-                continue
-            if b0 == STX_V2:
+                if p == n:
+                    break
+            # a place the search let through: decided here, a rejection resumes one byte on
+            if buf[p] == STX_V2:
                 hdr = HEADER_V2
-                if n - p < hdr:
-                    if not final:
+                if n - p < hdr:  # near the end: the search could not see the header
+                    if p + 2 < n and buf[p + 2] & ~IFLAG_SIGNED:
+                        rj.note("bad_frame")
+                    elif not final:
                         return p
-                    rj.truncated += 1
-                    rj.note("truncated")
+                    else:
+                        rj.truncated += 1
+                        rj.note("truncated")
                     rj.junk_bytes += 1
                     p += 1
                     continue
@@ -236,11 +296,11 @@ class FrameScanner:
                 # MAVLink 1 is never truncated: a length that is not a field boundary of
                 # the message is noise, refused before paying for a checksum.
                 if not v1_lens.get(msgid, 0) >> plen & 1:
-                    rj.note("bad_frame" if msgid in crc_table else "unknown_msgid")
+                    rj.note("bad_frame" if msgid in rev_extra else "unknown_msgid")
                     rj.junk_bytes += 1
                     p += 1
                     continue
-            extra = crc_table.get(msgid)
+            extra = rev_extra.get(msgid)
             if extra is None:
                 rj.note("unknown_msgid")
                 rj.junk_bytes += 1
@@ -255,9 +315,10 @@ class FrameScanner:
                 p += 1
                 continue
             body_end = p + hdr + plen
-            c = binascii.crc_hqx(buf[p + 1:body_end].translate(_REV8), 0xFFFF)
-            c = binascii.crc_hqx(_REV8[extra:extra + 1], c)
-            if (_REV8_HI[c & 0xFF] | _REV8[c >> 8]) != buf[body_end] | buf[body_end + 1] << 8:
+            # in the bit-reversed domain: the received CRC (little-endian) reversed byte by
+            # byte is the high and low byte of crc_hqx's result
+            if (crc(extra, crc(rev[p + 1:body_end], 0xFFFF))
+                    != rev[body_end] << 8 | rev[body_end + 1]):
                 rj.note("bad_crc")
                 rj.junk_bytes += 1
                 p += 1

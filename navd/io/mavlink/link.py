@@ -20,7 +20,7 @@ import os
 import socket
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, cast
+from typing import Any, TypeVar, cast
 
 import serial
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -47,10 +47,16 @@ __all__ = [
 # The name the single-file adapter logged under; log configuration may select it.
 _log = logging.getLogger("navd.io.mavlink")
 
-# UDP junk budget per sending address (MavlinkUdpProtocol._note_junk)
+# UDP junk budgets (MavlinkUdpProtocol._note_junk): bytes in no valid frame per window,
+# per sending address, per sending host (all its ports) and over all senders; a sender
+# over one is muted for MUTE_US (only datagrams that are one valid frame are read), except
+# an address that delivered samples within USEFUL_US
 JUNK_WINDOW_US = 1_000_000
-JUNK_BUDGET_BYTES = 32_768
+JUNK_BUDGET_BYTES = 8_192
+HOST_JUNK_BUDGET_BYTES = 16_384
+TOTAL_JUNK_BUDGET_BYTES = 32_768
 MUTE_US = 1_000_000
+USEFUL_US = 5_000_000
 _MAX_PEERS = 64
 # datagrams read per readiness callback at most (libuv's own UDP reader takes 32 per loop
 # turn): a backlog stays in the socket rather than racing ahead of the estimator task
@@ -60,6 +66,26 @@ _MAX_BATCH = 32
 _BURST = 24
 # read buffer: the largest UDP payload, so an oversize datagram is seen (and refused) whole
 _RX_BYTES = 65536
+
+_K = TypeVar("_K")
+
+
+def _over_budget(table: dict[_K, tuple[int, int]], key: _K, junk: int, now: int,
+                 budget: int) -> bool:
+    """Add ``junk`` bytes to ``key``'s window in ``table`` ((start us, bytes) each); True,
+    and the window forgotten, when that takes it over ``budget``.  The table holds at most
+    _MAX_PEERS keys (spoofed addresses must not grow it without bound)."""
+    start, n = table.get(key, (now, 0))
+    if now - start > JUNK_WINDOW_US:
+        start, n = now, 0
+    n += junk
+    if n <= budget:
+        if len(table) >= _MAX_PEERS and key not in table:
+            table.clear()
+        table[key] = (start, n)
+        return False
+    table.pop(key, None)
+    return True
 
 
 @dataclass(frozen=True)
@@ -99,9 +125,14 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
     def _init_link(self) -> None:
         self.transport: asyncio.DatagramTransport | None = None
         self.last_peer: tuple[Any, ...] | None = None
-        # per sending address: (start of its window us, junk bytes in it); muted until us
+        # junk windows (start us, junk bytes) per sending address, per host, over all
+        # senders; muted until (us) per address, per host, all senders
         self._junk: dict[tuple[Any, ...], tuple[int, int]] = {}
+        self._junk_hosts: dict[str, tuple[int, int]] = {}
+        self._junk_all: dict[None, tuple[int, int]] = {}
         self._muted: dict[tuple[Any, ...], int] = {}
+        self._muted_hosts: dict[str, int] = {}
+        self._muted_all = 0
         self._mute_log: RateLimitedLog | None = None
         # per address: receive time (us) of its last datagram that gave samples
         self._useful: dict[tuple[Any, ...], int] = {}
@@ -118,13 +149,20 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
         if dec is None:
             return
         now = self.clock_us()
-        if self._muted and addr in self._muted:
-            if now < self._muted[addr]:
+        if (self._muted or self._muted_hosts or now < self._muted_all) and self._is_muted(
+                addr, now):
+            # a muted sender: only a datagram that is one valid frame is read (a cost that
+            # does not depend on its bytes); anything else is dropped unscanned
+            whole = dec.feed_whole(data, now)
+            if whole is None:
                 self.counters.inc("datagrams_muted")
                 return
-            del self._muted[addr]
-        samples = dec.feed_datagram(data, now)
-        junk = dec.last_junk
+            samples = whole
+        else:
+            samples = dec.feed_datagram(data, now)
+            junk = dec.last_junk
+            if junk:
+                self._note_junk(addr, junk, now)
         if samples:
             if len(self._useful) >= _MAX_PEERS and addr not in self._useful:
                 self._useful.clear()
@@ -134,41 +172,76 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
                 for s in samples:
                     if type(s) is ImuSample:
                         pacer.note(s.t_us, now)
-        if junk:
-            self._note_junk(addr, junk, now)
         self._deliver(samples)
 
+    def _is_muted(self, addr: tuple[Any, ...], now: int) -> bool:
+        """Whether ``addr``, its host or all senders are muted for junk (see _note_junk),
+        and ``addr`` has not delivered samples within USEFUL_US."""
+        muted = False
+        until = self._muted.get(addr)
+        if until is not None:
+            if now < until:
+                muted = True
+            else:
+                del self._muted[addr]
+        host = addr[0]
+        until = self._muted_hosts.get(host)
+        if until is not None:
+            if now < until:
+                muted = True
+            else:
+                del self._muted_hosts[host]
+        if not muted and now >= self._muted_all:
+            return False
+        return now - self._useful.get(addr, now - USEFUL_US) >= USEFUL_US
+
     def _note_junk(self, addr: tuple[Any, ...], junk: int, now: int) -> None:
-        """Mute a sending address that sent more than JUNK_BUDGET_BYTES of bytes in no
-        valid frame within JUNK_WINDOW_US: its datagrams are then refused unread for
-        MUTE_US (counted ``datagrams_muted``).  Scanning junk costs up to ~0.6 us per byte
-        (FE/FD-dense patterns), so a 10 Mbit/s flood would take most of a core; a real
-        sender's datagrams are frames, and its junk (a torn frame now and then) stays far
-        below the budget.  A sender other than the flooder keeps being read, and an address
-        that delivered samples within the last window is never muted (junk sent in its name
-        from elsewhere must not silence the real sender; it costs CPU instead)."""
-        if now - self._useful.get(addr, -JUNK_WINDOW_US) < JUNK_WINDOW_US:
+        """Budget the bytes in no valid frame that ``addr`` sent: more than
+        JUNK_BUDGET_BYTES from one address, HOST_JUNK_BUDGET_BYTES from one host (over all
+        its ports: a flood that changes its source port) or TOTAL_JUNK_BUDGET_BYTES from all
+        senders together (one that changes its source host, e.g. across 127.0.0.0/8)
+        within JUNK_WINDOW_US mutes that address, host or all senders for MUTE_US.  Of a
+        muted sender only a datagram that is exactly one valid frame is read (one checksum,
+        whatever its bytes: a sender of single-frame datagrams that starts during a flood
+        still gets in); anything else is dropped unscanned (counted ``datagrams_muted``;
+        each muting counts ``peer_muted``, ``host_muted`` or ``senders_muted`` and is
+        logged, rate-limited).
+
+        Scanning junk costs up to ~1 us per byte (crafted frame headers whose checksum has
+        to be computed), so a 10 Mbit/s flood would take a core; a real sender's datagrams
+        are frames, and its junk (a torn frame now and then) stays far below the budgets.
+        An address that delivered samples within USEFUL_US is never muted, by any of the
+        three, and its junk is not counted: junk from the host of the real sender, or in
+        its name, must not silence it (junk in its name costs CPU instead)."""
+        if now - self._useful.get(addr, now - USEFUL_US) < USEFUL_US:
             return
-        start, n = self._junk.get(addr, (now, 0))
-        if now - start > JUNK_WINDOW_US:
-            start, n = now, 0
-        n += junk
-        if n <= JUNK_BUDGET_BYTES:
-            if len(self._junk) >= _MAX_PEERS and addr not in self._junk:
-                self._junk.clear()  # spoofed addresses must not grow it without bound
-            self._junk[addr] = (start, n)
-            return
-        self._junk.pop(addr, None)
-        if len(self._muted) >= _MAX_PEERS:
-            self._muted.clear()
-        self._muted[addr] = now + MUTE_US
-        self.counters.inc("peer_muted")
+        if _over_budget(self._junk, addr, junk, now, JUNK_BUDGET_BYTES):
+            if len(self._muted) >= _MAX_PEERS:
+                self._muted.clear()
+            self._muted[addr] = now + MUTE_US
+            self._mute_warn("peer_muted", "%s sent over %d bytes", addr, JUNK_BUDGET_BYTES)
+        host = addr[0]
+        if _over_budget(self._junk_hosts, host, junk, now, HOST_JUNK_BUDGET_BYTES):
+            if len(self._muted_hosts) >= _MAX_PEERS:
+                self._muted_hosts.clear()
+            self._muted_hosts[host] = now + MUTE_US
+            self._mute_warn("host_muted", "host %s sent over %d bytes (all ports)", host,
+                            HOST_JUNK_BUDGET_BYTES)
+        if _over_budget(self._junk_all, None, junk, now, TOTAL_JUNK_BUDGET_BYTES):
+            self._muted_all = now + MUTE_US
+            self._mute_warn("senders_muted", "all senders together sent over %d bytes",
+                            TOTAL_JUNK_BUDGET_BYTES)
+
+    def _mute_warn(self, what: str, who: str, *args: object) -> None:
+        self.counters.inc(what)
         if self._mute_log is None:
             interval = self.decoder.config.warn_interval_s if self.decoder else 5.0
             self._mute_log = RateLimitedLog(_log, interval)
-        self._mute_log.warn("peer_muted", "MAVLink: %s sent over %d bytes of junk (no valid "
-                        "frame) within %.1f s: its datagrams are refused unread for %.1f s",
-                        addr, JUNK_BUDGET_BYTES, JUNK_WINDOW_US * 1e-6, MUTE_US * 1e-6)
+        self._mute_log.warn(what, "MAVLink: " + who + " of junk (no valid frame) within "
+                            "%.1f s: muted for %.1f s (datagrams that are not one valid "
+                            "frame dropped unscanned), but for an address that delivered "
+                            "samples within %.0f s", *args, JUNK_WINDOW_US * 1e-6,
+                            MUTE_US * 1e-6, USEFUL_US * 1e-6)
 
     def error_received(self, exc: Exception) -> None:
         # ICMP port-unreachable on a connected udpout socket lands here; the link lives on.
