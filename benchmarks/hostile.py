@@ -13,9 +13,9 @@ another, each for ``--storm-s`` seconds with a quiet interval between, each boun
               junk ("FE 01 FD" repeated, the scanner's worst pattern) and real frames with
               their CRC broken
   garbage_ports  280-byte "FE 01 FD" datagrams at 10 Mbit/s from 127.0.0.1 (the real
-              sender's host), on a new source port every 25 datagrams (7 kB: no one
+              sender's host), on a new source port every 10 datagrams (2.8 kB: no one
               address goes over its junk budget)
-  garbage_hosts  the same from a new source host (127.0.x.y) every 25 datagrams
+  garbage_hosts  the same from a new source host (127.0.x.y) every 10 datagrams
   foreign     sysid 7 sends plausible false data on the real clock, 5 ms after each real
               sample: IMU of another stretch of road and the real fixes with the velocity
               reversed (the probe that drove yaw to 178 deg)
@@ -69,7 +69,7 @@ STORMS = ("baseline", "oversize", "garbage", "garbage_ports", "garbage_hosts", "
           "timestamps", "dronecan")
 FLOODS = ("oversize", "garbage", "garbage_ports", "garbage_hosts")
 # the rotating storms: datagrams per source port / host, and how the source changes
-PER_SOURCE = 25
+PER_SOURCE = 10
 ROTATE = {"garbage_ports": "port", "garbage_hosts": "host"}
 FLOOD_BPS = 10e6  # bits per second of the floods
 QUIET_S = 4.0  # between storms: the daemon settles, the next window starts clean

@@ -26,9 +26,9 @@ from tests.daemon_util import car_run
 
 JUNK_BYTES = 280
 FLOOD_STEP_US = round(1e6 * JUNK_BYTES * 8 / 10e6)  # 10 Mbit/s of 280-byte datagrams
-# datagrams before the flood changes its source port (or host): 7 kB, under one address's
+# datagrams before the flood changes its source port (or host): 2.8 kB, under one address's
 # budget, so that only the host's (or all senders') budget can catch it
-PER_SOURCE = 25
+PER_SOURCE = 10
 assert PER_SOURCE * JUNK_BYTES < JUNK_BUDGET_BYTES
 # what one budget lets through before the muting: whole datagrams, the last one over it
 BUDGET_DATAGRAMS = {"port": HOST_JUNK_BUDGET_BYTES // JUNK_BYTES + 1,
@@ -123,7 +123,7 @@ def test_a_flood_that_changes_its_source_is_budgeted_by_host_and_in_all(
         pattern: str, vary: str, caplog: pytest.LogCaptureFixture) -> None:
     """GIVEN 3 s of a 10 Mbit/s flood of 280-byte junk datagrams ("FE 01 FD" repeated, the
     scanner's costliest common pattern, or random bytes) that changes its source port every
-    25 datagrams (so no one address exceeds its budget; before, every one of them was
+    10 datagrams (so no one address exceeds its budget; before, every one of them was
     scanned: 167 % of a core for "FE 01 FD" changing ports every 100), or its source host,
     WHEN they are received,
     THEN the host (port changes) or all senders (host changes) are muted after one budget:
@@ -158,7 +158,7 @@ def test_the_real_stream_flows_while_junk_comes_from_its_host_on_other_ports(
         vary: str, start: str) -> None:
     """GIVEN the real sender's frames (5 s of car480, one frame per datagram) from
     127.0.0.1:5000 and a 10 Mbit/s "FE 01 FD" flood from the same host on ports that change
-    every 25 datagrams (or from hosts that change), the flood starting 1 s after the real
+    every 10 datagrams (or from hosts that change), the flood starting 1 s after the real
     stream, or 1.5 s before it (the host, or all senders, already muted when it starts),
     WHEN they are received,
     THEN every real frame is decoded exactly as without the flood (the address that

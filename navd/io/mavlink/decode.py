@@ -300,12 +300,7 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         # bookkeeping (anything else, including a frame refused here, goes the long way).
         f = self._scanner.whole(data)
         if f is not None:
-            try:
-                s = self._on_frame(f, recv_t_us)
-            except Exception as exc:  # wire input must never kill the daemon
-                self._reject("parser_error", "%s: %s", type(exc).__name__, exc)
-                return []
-            return [] if s is None else [s]
+            return self._one_frame(f, recv_t_us)
         rj = Rejects()
         out = self._decode(self._scanner.datagram(data, rj), rj, recv_t_us)
         self.last_junk = rj.junk_bytes
@@ -325,6 +320,10 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         c = self._counts
         c["datagrams"] = c.get("datagrams", 0) + 1
         self.last_junk = 0
+        return self._one_frame(f, recv_t_us)
+
+    def _one_frame(self, f: Frame, recv_t_us: int) -> list[Sample]:
+        """The samples of a datagram that is exactly the valid frame ``f``."""
         try:
             s = self._on_frame(f, recv_t_us)
         except Exception as exc:  # wire input must never kill the daemon

@@ -52,9 +52,9 @@ _log = logging.getLogger("navd.io.mavlink")
 # over one is muted for MUTE_US (only datagrams that are one valid frame are read), except
 # an address that delivered samples within USEFUL_US
 JUNK_WINDOW_US = 1_000_000
-JUNK_BUDGET_BYTES = 8_192
-HOST_JUNK_BUDGET_BYTES = 16_384
-TOTAL_JUNK_BUDGET_BYTES = 32_768
+JUNK_BUDGET_BYTES = 4_096
+HOST_JUNK_BUDGET_BYTES = 8_192
+TOTAL_JUNK_BUDGET_BYTES = 16_384
 MUTE_US = 1_000_000
 USEFUL_US = 5_000_000
 _MAX_PEERS = 64
