@@ -118,7 +118,9 @@ _B_DOWN = 1.19  # ... and then by 2^(1/4): a consistent window is no proof the w
 _B_BIG = 256.0  # step on a non-zero mean: the 600x walk (variance 3.6e5) within 3 windows
 _B_STEP = 16.0  # a real drift (log171: ~720 deg/h in 2 min) needs a walk 1000x the prior's
 # state array: high count, epochs counted, Q scale, R scale, sums for the lag-1 correlation
-# of the horizontal velocity innovations (sum z_k z_k-1, sum z_k^2), the previous z (N, E)
+# of the horizontal velocity innovations (sum z_k z_k-1, sum z_k^2), the previous z (N, E),
+# gyro-bias walk scale, sums of z (N, E) and of the unexplained acceleration (N, E), and
+# whether the previous window's mean ratio was above _MR_UP
 _HIGH, _N, _SCALE, _RSCALE, _SZZ, _SZ2, _PN, _PE, _BSCALE, _SN, _SE, _AN, _AE, _MHIT = range(14)
 
 

@@ -326,28 +326,20 @@ def update_member(bb: Arr, o: int, vn: float, ve: float, u_n: float, u_e: float,
     for i in range(NX):
         bb[o + i] += bb[k + 2 * i] * z0 + bb[k + 2 * i + 1] * z1
     bb[o + 2] = wrap(bb[o + 2])
-    if hold_yaw:
-        # P - K A^T - A K^T + K S K^T (A = P H^T): Joseph's form for a gain that is not optimal
-        for i in range(NX):
-            k0 = bb[k + 2 * i]
-            k1 = bb[k + 2 * i + 1]
-            ks0 = k0 * s00 + k1 * s01
-            ks1 = k0 * s01 + k1 * s11
-            for j in range(i, NX):
-                v = (bb[p + i * NX + j]
-                     - (k0 * bb[w + 2 * j] + k1 * bb[w + 2 * j + 1])
-                     - (bb[w + 2 * i] * bb[k + 2 * j] + bb[w + 2 * i + 1] * bb[k + 2 * j + 1])
-                     + ks0 * bb[k + 2 * j] + ks1 * bb[k + 2 * j + 1])
-                bb[p + i * NX + j] = v
-                bb[p + j * NX + i] = v
-    else:
-        # P -= K (P H^T)^T, written symmetric
-        for i in range(NX):
-            for j in range(i, NX):
-                v = bb[p + i * NX + j] - (bb[k + 2 * i] * bb[w + 2 * j]
-                                          + bb[k + 2 * i + 1] * bb[w + 2 * j + 1])
-                bb[p + i * NX + j] = v
-                bb[p + j * NX + i] = v
+    # P - K A^T - A K^T + K S K^T (A = P H^T), written symmetric: Joseph's form, right for the
+    # held gain as for the optimal one (where it equals P - K A^T)
+    for i in range(NX):
+        k0 = bb[k + 2 * i]
+        k1 = bb[k + 2 * i + 1]
+        ks0 = k0 * s00 + k1 * s01
+        ks1 = k0 * s01 + k1 * s11
+        for j in range(i, NX):
+            v = (bb[p + i * NX + j]
+                 - (k0 * bb[w + 2 * j] + k1 * bb[w + 2 * j + 1])
+                 - (bb[w + 2 * i] * bb[k + 2 * j] + bb[w + 2 * i + 1] * bb[k + 2 * j + 1])
+                 + ks0 * bb[k + 2 * j] + ks1 * bb[k + 2 * j + 1])
+            bb[p + i * NX + j] = v
+            bb[p + j * NX + i] = v
     for i in range(NX):
         bb[p + i * NX + i] = max(bb[p + i * NX + i], 1e-14)
     bb[o + M_NIS] = nis

@@ -96,6 +96,15 @@ def crc_x25(data: bytes, crc_extra: int | None = None) -> int:
     return _REV8_HI[c & 0xFF] | _REV8[c >> 8]
 
 
+def _crc_matches(rev: bytes, p: int, body_end: int, rev_extra: bytes) -> bool:
+    """Whether the frame at ``p`` carries its checksum, computed in the bit-reversed domain
+    (``rev``: the buffer with every byte bit-reversed, ``rev_extra``: the message's
+    CRC_EXTRA byte so reversed): there the received CRC (little-endian), reversed byte by
+    byte, is the high and low byte of ``crc_hqx``'s result, so no result is reversed back."""
+    return (binascii.crc_hqx(rev_extra, binascii.crc_hqx(rev[p + 1:body_end], 0xFFFF))
+            == rev[body_end] << 8 | rev[body_end + 1])
+
+
 class Frame(NamedTuple):
     """One CRC-checked frame.  ``payload`` is as sent (MAVLink 2 may have cut trailing zero
     bytes; the reader pads); ``raw`` is the whole frame, signature included."""
@@ -207,13 +216,11 @@ class FrameScanner:
                 return None
         else:
             return None
-        extra = self.crc_extra.get(msgid)
+        extra = self._rev_extra.get(msgid)
         if extra is None:
             return None
         body_end = hdr + plen
-        c = binascii.crc_hqx(data[1:body_end].translate(_REV8), 0xFFFF)
-        c = binascii.crc_hqx(_REV8[extra:extra + 1], c)
-        if (_REV8_HI[c & 0xFF] | _REV8[c >> 8]) != data[body_end] | data[body_end + 1] << 8:
+        if not _crc_matches(data.translate(_REV8), 0, body_end, extra):
             return None
         data = bytes(data)
         if hdr == HEADER_V2:
@@ -245,7 +252,7 @@ class FrameScanner:
         rev_extra = self._rev_extra
         v1_lens = self.v1_lengths
         check = self.check_frame
-        crc = binascii.crc_hqx
+        crc_ok = _crc_matches
         while p < n:
             m = search(buf, p)
             q = n if m is None else m.start()
@@ -315,10 +322,7 @@ class FrameScanner:
                 p += 1
                 continue
             body_end = p + hdr + plen
-            # in the bit-reversed domain: the received CRC (little-endian) reversed byte by
-            # byte is the high and low byte of crc_hqx's result
-            if (crc(extra, crc(rev[p + 1:body_end], 0xFFFF))
-                    != rev[body_end] << 8 | rev[body_end + 1]):
+            if not crc_ok(rev, p, body_end, extra):
                 rj.note("bad_crc")
                 rj.junk_bytes += 1
                 p += 1

@@ -88,6 +88,25 @@ def _over_budget(table: dict[_K, tuple[int, int]], key: _K, junk: int, now: int,
     return True
 
 
+def _muted_now(table: dict[_K, int], key: _K, now: int) -> bool:
+    """Whether ``key`` is muted at ``now`` in ``table`` (muted until, us); an expired entry
+    is forgotten."""
+    until = table.get(key)
+    if until is None:
+        return False
+    if now < until:
+        return True
+    del table[key]
+    return False
+
+
+def _mute(table: dict[_K, int], key: _K, now: int) -> None:
+    """Mute ``key`` for MUTE_US; the table holds at most _MAX_PEERS keys."""
+    if len(table) >= _MAX_PEERS and key not in table:
+        table.clear()
+    table[key] = now + MUTE_US
+
+
 @dataclass(frozen=True)
 class LinkAddress:
     kind: str  # "udpin" | "udpout" | "tcp" | "serial"
@@ -177,20 +196,9 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
     def _is_muted(self, addr: tuple[Any, ...], now: int) -> bool:
         """Whether ``addr``, its host or all senders are muted for junk (see _note_junk),
         and ``addr`` has not delivered samples within USEFUL_US."""
-        muted = False
-        until = self._muted.get(addr)
-        if until is not None:
-            if now < until:
-                muted = True
-            else:
-                del self._muted[addr]
-        host = addr[0]
-        until = self._muted_hosts.get(host)
-        if until is not None:
-            if now < until:
-                muted = True
-            else:
-                del self._muted_hosts[host]
+        # both looked up: each forgets an expired muting
+        muted = (_muted_now(self._muted, addr, now)
+                 | _muted_now(self._muted_hosts, addr[0], now))
         if not muted and now >= self._muted_all:
             return False
         return now - self._useful.get(addr, now - USEFUL_US) >= USEFUL_US
@@ -216,15 +224,11 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
         if now - self._useful.get(addr, now - USEFUL_US) < USEFUL_US:
             return
         if _over_budget(self._junk, addr, junk, now, JUNK_BUDGET_BYTES):
-            if len(self._muted) >= _MAX_PEERS:
-                self._muted.clear()
-            self._muted[addr] = now + MUTE_US
+            _mute(self._muted, addr, now)
             self._mute_warn("peer_muted", "%s sent over %d bytes", addr, JUNK_BUDGET_BYTES)
         host = addr[0]
         if _over_budget(self._junk_hosts, host, junk, now, HOST_JUNK_BUDGET_BYTES):
-            if len(self._muted_hosts) >= _MAX_PEERS:
-                self._muted_hosts.clear()
-            self._muted_hosts[host] = now + MUTE_US
+            _mute(self._muted_hosts, host, now)
             self._mute_warn("host_muted", "host %s sent over %d bytes (all ports)", host,
                             HOST_JUNK_BUDGET_BYTES)
         if _over_budget(self._junk_all, None, junk, now, TOTAL_JUNK_BUDGET_BYTES):
