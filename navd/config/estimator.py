@@ -199,6 +199,10 @@ class YawBankSection:
     # the bank is trusted once its composite sigma stayed below trust_sd and its estimate
     # within agree of itself for agree_time
     trust_sd: float = _f(10.0, "deg")
+    # a trial may start once the composite sigma is below trial_sd (>= trust_sd): the main
+    # filter then sees the rest of the same acceleration with the bank's yaw; it still ends
+    # aligned only with a trusted bank
+    trial_sd: float = _f(15.0, "deg")
     agree: float = _f(5.0, "deg")
     agree_time: float = _f(3.0, "s")
     # trial: the main heading is set from the bank and kept only if the velocity NIS of the
@@ -224,6 +228,7 @@ class YawBankSection:
         check(self.trust_sd > 0.0 and self.agree > 0.0, "yaw_bank", "trust_sd_deg/agree_deg",
               "> 0")
         check(self.trial_epochs >= 1, "yaw_bank", "trial_epochs", ">= 1")
+        check(self.trial_sd >= self.trust_sd, "yaw_bank", "trial_sd_deg", ">= trust_sd_deg")
         check(self.excitation_tau > 0.0, "yaw_bank", "excitation_tau_s", "> 0")
 
 
