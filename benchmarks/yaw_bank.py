@@ -366,7 +366,42 @@ def score_real(spec: rb.RealLog, config: Sequence[str] = ()) -> dict[str, Any]:
         "roll_vs_onboard_rms_deg": _rms(e[fly, 0]),
         "pitch_vs_onboard_rms_deg": _rms(e[fly, 1]),
     })
+    if spec.profile == "fixed_wing":
+        rec.update(course_figures(t_us, a[:, 3], sd[:, 2], al_fly & (np.abs(a[:, 2]) < PITCH_MAX),
+                                  data.gnss_t_us, data.gnss[:, 3:5], ref))
     return rec
+
+
+COURSE_MIN_SPEED = 8.0  # m/s: GNSS course noise below ~1 deg at 0.1 m/s velocity noise
+# rad: in loops the Euler yaw flips by 180 deg through the vertical; heading is course only
+# in flight that is not steeply climbing or diving
+PITCH_MAX = math.radians(45.0)
+
+
+def course_figures(t_us: npt.NDArray[np.int64], yaw_rad: Arr, yaw_sd_deg: Arr,
+                   al_fly: npt.NDArray[np.bool_], gnss_t_us: npt.NDArray[np.int64],
+                   vel_ne: Arr, ref: Any) -> dict[str, Any]:
+    """A fixed wing's heading against its GNSS course, where the course is a heading proxy
+    (wind small against airspeed: the X8's airspeed triangle fits a 0.3 m/s wind,
+    benchmarks/x8_wind.py): navd's aligned in-flight yaw and the onboard yaw, each minus the
+    course of the GNSS velocity (interpolated to the row: a 5 Hz fix is 0.1 s old on
+    average, 3 deg at a 30 deg/s turn) at ground speeds >= COURSE_MIN_SPEED and, by the
+    caller's mask, navd's |pitch| < PITCH_MAX: RMS deg, and navd's share beyond 3 sigma."""
+    v = np.column_stack([np.interp(t_us, gnss_t_us, vel_ne[:, 0]),
+                         np.interp(t_us, gnss_t_us, vel_ne[:, 1])])
+    fast = al_fly & (np.hypot(v[:, 0], v[:, 1]) >= COURSE_MIN_SPEED)
+    course = np.arctan2(v[:, 1], v[:, 0])
+    e_nv = np.degrees((yaw_rad - course + math.pi) % (2 * math.pi) - math.pi)
+    onb = np.interp(t_us, ref.t_us, np.unwrap(ref.yaw_rad))
+    e_onb = np.degrees((onb - course + math.pi) % (2 * math.pi) - math.pi)
+    return {
+        "course_instants": int(fast.sum()),
+        "heading_vs_course_rms_deg": _rms(e_nv[fast]),
+        "heading_vs_course_beyond_3s_pct": (100.0 * float(np.mean(np.abs(e_nv[fast])
+                                                                  > 3.0 * yaw_sd_deg[fast]))
+                                            if fast.any() else math.nan),
+        "onboard_vs_course_rms_deg": _rms(e_onb[fast]),
+    }
 
 
 def _real_job(args: tuple[str, tuple[str, ...]]) -> dict[str, Any]:
@@ -416,7 +451,13 @@ def format_real(rec: Mapping[str, Any]) -> str:
             f"{_fmt(rec['heading_vs_onboard_max_deg'], '.1f'):>7}"
             f"{_fmt(rec['heading_beyond_3s_pct'], '.1f'):>7}"
             f"{_fmt(rec['roll_vs_onboard_rms_deg'], '.2f'):>7}"
-            f"{_fmt(rec['pitch_vs_onboard_rms_deg'], '.2f'):>7}")
+            f"{_fmt(rec['pitch_vs_onboard_rms_deg'], '.2f'):>7}"
+            + (f"\n{'':<13}vs GNSS course at >= {COURSE_MIN_SPEED:.0f} m/s, aligned, "
+               f"{rec['course_instants']} instants: navd "
+               f"{_fmt(rec['heading_vs_course_rms_deg'], '.2f')} deg RMS "
+               f"({_fmt(rec['heading_vs_course_beyond_3s_pct'], '.1f')} % beyond 3 sigma), "
+               f"onboard {_fmt(rec['onboard_vs_course_rms_deg'], '.2f')} deg RMS"
+               if "heading_vs_course_rms_deg" in rec else ""))
 
 
 def run_all(names: Sequence[str], seeds: int, jobs: int, real: bool,

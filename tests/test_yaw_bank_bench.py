@@ -160,3 +160,52 @@ def test_config_override_is_announced(b: ModuleType, capsys: pytest.CaptureFixtu
         b.main(["--seeds", "1", "--jobs", "1", "--scenarios", "hover_only",
                 "--set", "trajectory.nosuch=1"])
     assert ex.value.code == 2
+
+
+def test_course_figures_against_a_hand_computation(b: ModuleType) -> None:
+    """GIVEN a fixed wing flying a circle at 15 m/s (GNSS at the rows' 10 Hz) whose navd yaw is the
+    course + 2 deg (sigma 1 deg) and onboard yaw the course - 10 deg, with a slow stretch and
+    an unaligned stretch,
+    WHEN course_figures scores it,
+    THEN navd is 2 deg RMS from the course, 0 % beyond 3 sigma (2 > 3 x 0.5 makes it 100 %),
+    the onboard 10 deg, and the slow and unaligned rows do not count."""
+    from types import SimpleNamespace
+
+    t_g = np.arange(0, 60_000_000, 100_000, dtype=np.int64)
+    course_g = 0.2 * t_g * 1e-6  # rad, a 0.2 rad/s circle
+    speed = np.where(t_g < 10_000_000, 5.0, 15.0)
+    vel = np.column_stack([speed * np.cos(course_g), speed * np.sin(course_g)])
+    t = np.arange(0, 59_000_000, 100_000, dtype=np.int64)
+    course = 0.2 * t * 1e-6
+    yaw = course + math.radians(2.0)
+    aligned = t >= 5_000_000
+    aligned[(t >= 30_000_000) & (t < 40_000_000)] = False
+    ref = SimpleNamespace(t_us=t, yaw_rad=course - math.radians(10.0))
+    f = b.course_figures(t, yaw, np.full(t.size, 1.0), aligned, t_g, vel, ref)
+    counted = aligned & (t >= 10_000_000)
+    assert f["course_instants"] == int(counted.sum())
+    assert f["heading_vs_course_rms_deg"] == pytest.approx(2.0, abs=0.05)
+    assert f["heading_vs_course_beyond_3s_pct"] == 0.0
+    assert f["onboard_vs_course_rms_deg"] == pytest.approx(10.0, abs=0.05)
+    f2 = b.course_figures(t, yaw, np.full(t.size, 0.5), aligned, t_g, vel, ref)
+    assert f2["heading_vs_course_beyond_3s_pct"] == 100.0
+
+
+def test_x8_airspeed_triangle_recovers_a_known_wind() -> None:
+    """GIVEN ground velocities made from airspeed 12-20 m/s x 0.95 along a heading that turns
+    through 360 deg, plus a 4 m/s wind from the south-west,
+    WHEN benchmarks/x8_wind.triangle_fit fits the true heading and one 20 deg off,
+    THEN the true heading gives k 0.95, the wind, and ~0 residual; the wrong one a large
+    residual."""
+    w = load_benchmark("x8_wind")
+    psi = np.linspace(0.0, 4.0 * math.pi, 400)
+    air = 16.0 + 4.0 * np.sin(psi * 3.0)
+    wind = np.array([2.83, 2.83])
+    vel = 0.95 * air[:, None] * np.column_stack([np.cos(psi), np.sin(psi)]) + wind
+    good = w.triangle_fit(vel, air, psi)
+    assert good["k"] == pytest.approx(0.95, abs=1e-9)
+    assert good["wind_n_mps"] == pytest.approx(2.83, abs=1e-9)
+    assert good["wind_e_mps"] == pytest.approx(2.83, abs=1e-9)
+    assert good["residual_rms_mps"] < 1e-9
+    bad = w.triangle_fit(vel, air, psi + math.radians(20.0))
+    assert bad["residual_rms_mps"] > 3.0
