@@ -283,6 +283,7 @@ def main(argv: list[str] | None = None) -> int:
         navd = start_navd([f"mavlink.nominal_imu_rate_hz={a.imu_rate}", *a.set])
         log = AttitudeLog(navd.port_out)
         log.start()
+        status: StatusSubscriber | None = None
         try:
             navd.wait_ready()
             status = StatusSubscriber(navd.port_z, navd.vehicle)
@@ -343,6 +344,9 @@ def main(argv: list[str] | None = None) -> int:
             results["final_state"] = final.get("state")
         finally:
             log.running = False
+            if status is not None:
+                # an open Zenoh session keeps the interpreter from exiting after the table
+                status.session.close()
             rc = navd.stop()
             results["navd_exit"] = rc
             results["navd_log_tail"] = navd.log_text().splitlines()[-3:]

@@ -67,6 +67,23 @@ def test_csv_replay_matches_direct_push(run_dir: tuple[Path, list[str]], tmp_pat
     assert 2900 < len(rows) <= 3000
 
 
+def test_no_progress_bar_when_stderr_is_not_a_terminal(run_dir: tuple[Path, list[str]],
+                                                      tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """GIVEN the 60 s drive, WHEN ``navd replay`` runs without --quiet and its stderr is not a
+    terminal (pytest captures it: a pipe, as under systemd or in a log file),
+    THEN no progress bar is written (no carriage returns, no "samples" counter), only the
+    summary lines."""
+    d, sets = run_dir
+    out = tmp_path / "sol.csv"
+    assert replay_main(["--imu", str(d / "imu.csv"), "--gnss", str(d / "gnss.csv"),
+                        "--out", str(out), *sets]) == 0
+    err = capsys.readouterr().err
+    assert "\r" not in err
+    assert "samples/s" not in err and "samples]" not in err
+    assert "solution rows" in err
+
+
 def test_missing_column_is_a_clear_error(run_dir: tuple[Path, list[str]], tmp_path: Path,
                                          capsys: pytest.CaptureFixture[str]) -> None:
     """GIVEN a gnss.csv without its vel_e column,

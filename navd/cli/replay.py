@@ -54,7 +54,9 @@ def run_replay(est: Estimator, samples: Iterable[Sample], writer: RowWriter,
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=progress_total, unit="samples", mininterval=0.5, file=sys.stderr)
+        # disable=None: no bar when stderr is not a terminal (logs, pipes, systemd)
+        bar = tqdm(total=progress_total, unit="samples", mininterval=0.5, file=sys.stderr,
+                   disable=None)
         samples = _counted(samples, bar)
     for sol in solutions(est, samples, rate_hz, aiding):
         writer.write(sol)

@@ -227,7 +227,7 @@ def make_figures(ev: Evaluation, sol: dict[str, Any], aid: dict[str, Any] | None
     if progress and len(ev.t_s) > 200_000:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(steps), unit="figure", file=sys.stderr)
+        bar = tqdm(total=len(steps), unit="figure", file=sys.stderr, disable=None)
     for step in steps:
         r = step()
         if r is not None:

@@ -240,7 +240,7 @@ def synthesize(model: GravitationModel, lat_deg: Arr, lon_deg: Arr, h_m: float,
     eta = np.empty((nlat, nlon))
     dg = np.empty((nlat, nlon))
     lon = np.radians(lon_deg)
-    for i in tqdm(range(nlat), desc="dov-grid", unit="row", disable=not progress,
+    for i in tqdm(range(nlat), desc="dov-grid", unit="row", disable=None if progress else True,
                   file=sys.stderr):
         lat = np.full(nlon, math.radians(float(lat_deg[i])))
         xi[i], eta[i], dg[i] = mechanization_dov(model, lat, lon, h_m)

@@ -33,7 +33,7 @@ def _rows(path: Path, progress: bool) -> Iterator[list[str]]:
         from tqdm import tqdm
 
         bar = tqdm(total=size, unit="B", unit_scale=True, desc=path.name, file=sys.stderr,
-                   mininterval=0.5)
+                   mininterval=0.5, disable=None)
     with open(path, newline="") as fh:
         for line in fh:
             if bar is not None:
