@@ -53,18 +53,20 @@ def test_log171_replays_as_the_multirotor_it_says_it_is(tmp_path: Path) -> None:
     """GIVEN log171.bin (ArduCopter 3.3, "APM:Copter V3.3-dev"),
     WHEN `navd replay --log log171.bin --out sol.csv` runs (no other option),
     THEN it says the multirotor profile comes from the log's firmware, and in flight (take-off
-    at 71 s, the crash at 227.7 s) roll/pitch are within 4.45 / 2.1 deg RMS of ATT over more
-    than 7000 rows.
+    at 71 s, the crash at 227.7 s) roll/pitch are within 3.95 / 2.75 deg RMS of ATT over more
+    than 7000 rows, and their root sum of squares within 4.46 deg (the previous measurement:
+    no worse in total).
 
-    Measured 4.04 / 1.89 deg (7724 rows) since the yaw bank's Jacobian takes only the
-    increment's part above its noise (docs/results.md, session 2026-11-26; 3.50 / 3.68
-    before, so roll is worse and pitch better by more, RSS 5.08 -> 4.46); with the ground
-    profile the replay used before, 8.62 / 10.99.  The 1.5 deg expectation is not met: ATT
-    itself leans on the magnetometer (the
-    autopilot's second estimate, AHR2, differs from it by 1.0 / 0.5 deg RMS in flight;
-    docs/results.md, "Real flight: ArduCopter 3.3 DataFlash"), and navd's own gyro bias
-    drifts in flight (docs/results.md, "σ honesty on the real logs"), so the bound is the
-    measured value plus about 10 %."""
+    Measured 3.57 / 2.46 deg (RSS 4.34; 7724 rows) since a bank trial may start below 15 deg
+    (docs/results.md, session 2026-11-26 evening); before it 4.04 / 1.89 (RSS 4.46), and
+    3.50 / 3.68 (RSS 5.08) before the bank's Jacobian change.  The error is a slowly varying
+    tilt of 2-6 deg that both versions share; which axis carries it depends on the heading
+    the bank aligns to at 85-95 s, so the per-axis bounds are the measured values plus about
+    10 % and the RSS bound keeps the total from growing.  With the ground profile the replay
+    used before, 8.62 / 10.99.  The 1.5 deg expectation is not met: ATT itself leans on the
+    magnetometer (the autopilot's second estimate, AHR2, differs from it by 1.0 / 0.5 deg RMS
+    in flight; docs/results.md, "Real flight: ArduCopter 3.3 DataFlash"), and navd's own gyro
+    bias drifts in flight (docs/results.md, "σ honesty on the real logs")."""
     err, m = _replay(LOG171, tmp_path)
     assert ("profile multirotor from the log's vehicle type (firmware APM:Copter V3.3-dev "
             "(ae3192b8)); --set filter.profile=... to override") in err, err[-3000:]
@@ -72,7 +74,9 @@ def test_log171_replays_as_the_multirotor_it_says_it_is(tmp_path: Path) -> None:
     assert float(m["t0"]) == pytest.approx(71.0, abs=1.0)
     assert m["end"] == "227.7 s (a crash)"
     assert int(m["n"]) > 7000
-    assert float(m["roll"]) < 4.45 and float(m["pitch"]) < 2.1, m
+    roll, pitch = float(m["roll"]), float(m["pitch"])
+    assert roll < 3.95 and pitch < 2.75, m
+    assert (roll**2 + pitch**2) ** 0.5 < 4.46, m
 
 
 def test_quad123_agrees_with_att_once_told_it_is_a_multirotor(tmp_path: Path) -> None:
