@@ -79,25 +79,27 @@ def test_log171_replays_as_the_multirotor_it_says_it_is(tmp_path: Path) -> None:
     assert (roll**2 + pitch**2) ** 0.5 < 4.46, m
 
 
-def test_quad123_agrees_with_att_once_told_it_is_a_multirotor(tmp_path: Path) -> None:
+def test_quad123_is_recognised_as_a_multirotor_and_agrees_with_att(tmp_path: Path) -> None:
     """GIVEN quad123.zip (InertialNav text log: no vehicle type in it),
-    WHEN `navd replay --log quad123.zip --out sol.csv` runs, then again with
-    `--set filter.profile=multirotor`,
-    THEN the first keeps the default ground profile and says the log states no vehicle type,
-    roll/pitch within 2.6 / 3.0 deg RMS of ATT in flight (from 4.0 s); the second meets the
-    issue's 1.5 deg on both axes.
+    WHEN `navd replay --log quad123.zip --out sol.csv` runs (no other option), then again
+    with `--set filter.profile=ground`,
+    THEN the first infers the multirotor profile from the GNSS track (it climbs 7.3 m at
+    378 s while drifting 6.8 m: navd/io/logs/infer.py), says so, and meets the issue's
+    1.5 deg on both axes in flight (from 4.0 s); the ground profile, asked for, stays and is
+    worse (within 2.6 / 3.0 deg).
 
-    Measured 2.29 / 2.71 deg (ground) and 0.57 / 1.04 deg (multirotor) over 31503 rows; the
-    ground bound is the measured value plus about 10 % (the ground profile takes the GNSS
-    course as heading, which a hovering quad's course is not)."""
+    Measured 0.57 / 1.00 deg (inferred multirotor) and 2.29 / 2.71 deg (ground) over 31503
+    rows; the ground bound is the measured value plus about 10 % (the ground profile takes
+    the GNSS course as heading, which a hovering quad's course is not)."""
     err, m = _replay(QUAD123, tmp_path)
-    assert "profile ground (the default): the log does not state its vehicle type" in err
+    assert "profile multirotor (inferred from the GNSS track: climbed 7.3 m" in err, err[-3000:]
+    assert "the log states no vehicle type); --set filter.profile=... to override" in err
     assert m["ref"] == "ATT.txt" and float(m["t0"]) == pytest.approx(4.0, abs=0.1)
     assert int(m["n"]) > 30000
-    assert float(m["roll"]) < 2.6 and float(m["pitch"]) < 3.0, m
-    err, m = _replay(QUAD123, tmp_path, "--set", "filter.profile=multirotor")
-    assert "profile multirotor as set (filter.profile)" in err
     assert float(m["roll"]) < 1.5 and float(m["pitch"]) < 1.5, m
+    err, m = _replay(QUAD123, tmp_path, "--set", "filter.profile=ground")
+    assert "profile ground as set (filter.profile)" in err
+    assert float(m["roll"]) < 2.6 and float(m["pitch"]) < 3.0, m
 
 
 def test_f450_glitch_replays_and_prints_its_rms(tmp_path: Path) -> None:

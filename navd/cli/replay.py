@@ -375,6 +375,7 @@ def _replay_log(a: argparse.Namespace) -> int:
     profile is the log's vehicle type unless the user set one; the tilt against the log's
     own attitude in flight is printed at the end."""
     from navd.io.logs import LogFormatError, LogOptions, read_log, write_reference
+    from navd.io.logs.infer import infer_vehicle
 
     try:
         tables = load_config(a.config, a.set)
@@ -395,7 +396,10 @@ def _replay_log(a: argparse.Namespace) -> int:
         print(f"navd replay: note: {note}", file=sys.stderr)
     if data.damage is not None:
         print(f"navd replay: WARNING: {data.damage}", file=sys.stderr)
-    nav, said = log_profile(tables, nav, data.vehicle, data.vehicle_from)
+    vehicle, vehicle_from = data.vehicle, data.vehicle_from
+    if not vehicle and not vehicle_from:
+        vehicle, vehicle_from = infer_vehicle(data.gnss_t_us, data.gnss)
+    nav, said = log_profile(tables, nav, vehicle, vehicle_from)
     print(f"navd replay: {said}", file=sys.stderr)
     est = build_estimator(nav)
     if a.reference_out:
@@ -441,6 +445,9 @@ def log_profile(tables: dict[str, Any], nav: NavConfig, vehicle: str, vehicle_fr
             chosen = copy.deepcopy(tables)
             chosen.setdefault("filter", {})["profile"] = vehicle
             nav = DaemonConfig.from_dict(chosen, need_input=False).nav
+        if vehicle_from.startswith("inferred"):
+            return nav, (f"profile {vehicle} ({vehicle_from}; the log states no vehicle "
+                         "type); --set filter.profile=... to override")
         return nav, (f"profile {vehicle} from the log's vehicle type ({vehicle_from}); "
                      "--set filter.profile=... to override")
     if vehicle_from:
