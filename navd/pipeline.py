@@ -106,6 +106,13 @@ class OutputSchedule:
         self._next_us: int | None = None
         self._epoch = 0
 
+    @property
+    def next_us(self) -> int:
+        """The next output instant (sensor us) of the epoch :meth:`due` was last asked in:
+        ``due(t, that epoch)`` is False, and changes nothing, for every ``t`` before it;
+        -1 before the first :meth:`due`."""
+        return -1 if self._next_us is None else self._next_us
+
     def due(self, t_us: int, epoch: int = 0) -> bool:
         p = self.period_us
         if epoch != self._epoch:

@@ -109,6 +109,22 @@ class ClockGuard:
             self.counters["clock_wild"] += 1
         return self._hold(s, host_us)
 
+    def on_clock(self, t: int, host_us: int | None) -> bool:
+        """The usual case of :meth:`push` for an IMU sample stamped ``t``, without building
+        its one-sample list: True, with the same bookkeeping, when ``push`` would pass the
+        sample alone because it is on the current clock and no candidate is pending; False,
+        nothing changed, for anything else (then call :meth:`push`).  The kHz path (issue 18)."""
+        ref = self.t_us
+        if ref < 0 or self._cands or not 0 < t < _MAX_T_US:
+            return False
+        ahead = t - ref
+        if not -self.back_tolerance_us <= ahead <= self.max_gap_us:
+            return False
+        if ahead > 0:
+            self.t_us = t
+            self._host_at_t = host_us
+        return True
+
     def _gap_is_real(self, ahead: int, host_us: int | None) -> bool:
         if host_us is None or self._host_at_t is None:
             return ahead <= _REPLAY_AHEAD_US

@@ -133,6 +133,8 @@ class Estimator:
         q[12:15] = c.imu.accel_bias_rw**2
 
         self._limits = plausible.Limits.from_config(c.imu)
+        self._max_gyro_rps = self._limits.max_gyro_rps
+        self._max_accel_mps2 = self._limits.max_accel_mps2
         self._gating = c.filter.robust != "none"
         self._coning = c.filter.coning
         self._cov_interval = c.filter.cov_interval
@@ -347,47 +349,57 @@ class Estimator:
 
     # ------------------------------------------------------------------ IMU
     def _push_imu(self, s: ImuSample) -> bool:
+        # The kHz path (issue 18): each field read once, the usual plausibility test inline
+        # (the same arithmetic as plausible.imu_reason, which still classifies a failure).
         cnt = self.counters
-        if s.dt_us <= 0 or s.dt_us > self._max_imu_gap_us:
+        dt_us = s.dt_us
+        if dt_us <= 0 or dt_us > self._max_imu_gap_us:
             cnt["imu_bad_dt"] += 1
             return False
-        dt = s.dt_us * 1e-6
-        lim = self._limits
-        bad = plausible.imu_reason(s.dtheta_x, s.dtheta_y, s.dtheta_z, s.dvel_x, s.dvel_y,
-                                   s.dvel_z, lim.max_gyro_rps * dt, lim.max_accel_mps2 * dt)
-        if bad is not None:
-            cnt["imu_nonfinite" if bad == "imu_nonfinite" else "imu_out_of_range"] += 1
-            return False
-        if self.t_us >= 0:
-            if s.t_us == self.t_us:
+        dt = dt_us * 1e-6
+        dtx, dty, dtz = s.dtheta_x, s.dtheta_y, s.dtheta_z
+        dvx, dvy, dvz = s.dvel_x, s.dvel_y, s.dvel_z
+        max_w = self._max_gyro_rps * dt
+        max_f = self._max_accel_mps2 * dt
+        if not (dtx * dtx + dty * dty + dtz * dtz <= max_w * max_w
+                and dvx * dvx + dvy * dvy + dvz * dvz <= max_f * max_f):
+            bad = plausible.imu_reason(dtx, dty, dtz, dvx, dvy, dvz, max_w, max_f)
+            if bad is not None:
+                cnt["imu_nonfinite" if bad == "imu_nonfinite" else "imu_out_of_range"] += 1
+                return False
+        t_us = s.t_us
+        last = self.t_us
+        if last >= 0:
+            if t_us == last:
                 cnt["imu_duplicate"] += 1
                 return False
-            if s.t_us < self.t_us:
+            if t_us < last:
                 cnt["imu_out_of_order"] += 1
-                if self.t_us - s.t_us > 1_000_000:
+                if last - t_us > 1_000_000:
                     # the sensor clock went back by seconds: a sensor reboot; start over
                     cnt["reinit_time_jump"] += 1
                     self._reset_state("reinit_time_jump")
                 return False
-            gap = s.t_us - self.t_us - s.dt_us
+            gap = t_us - last - dt_us
             if gap > self._max_imu_gap_us:
                 cnt["imu_gap"] += 1
                 if gap > 1_000_000:
                     cnt["reinit_time_jump"] += 1
                     self._reset_state("reinit_time_jump")
-        self.t_us = s.t_us
+        self.t_us = t_us
         cnt["imu"] += 1
-        if rest_push(self._rest_acc, s.dtheta_x, s.dtheta_y, s.dtheta_z, s.dvel_x, s.dvel_y,
-                     s.dvel_z, dt, self.gyro_rest.window_s):
+        if rest_push(self._rest_acc, dtx, dty, dtz, dvx, dvy, dvz, dt,
+                     self.gyro_rest.window_s):
             self.gyro_rest.window_done(self)
         if self._stage == _WAIT:
             self._level(s, dt)
             return False
-        st.imu_step(self._buf, float(s.t_us), s.dtheta_x, s.dtheta_y, s.dtheta_z, s.dvel_x,
-                    s.dvel_y, s.dvel_z, dt, self._coning, self._cov_interval)
+        t = float(t_us)
+        st.imu_step(self._buf, t, dtx, dty, dtz, dvx, dvy, dvz, dt, self._coning,
+                    self._cov_interval)
         if self._bank_buf is not None:
-            bank_imu(self._bank_buf, self._buf, float(s.t_us), dt)
-        self._imu_dt_us = s.dt_us
+            bank_imu(self._bank_buf, self._buf, t, dt)
+        self._imu_dt_us = dt_us
         return True
 
     def _level(self, s: ImuSample, dt: float) -> None:

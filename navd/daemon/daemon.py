@@ -496,16 +496,26 @@ class Daemon:
     # -- the estimator task -------------------------------------------------------------------
 
     async def _estimate(self) -> None:
-        est, sinks, get = self.est, self.sinks, self.queue.get
-        guard = self.clock_guard.push
+        est, sinks, get, ready = self.est, self.sinks, self.queue.get, self.queue.ready
+        guard, on_clock = self.clock_guard.push, self.clock_guard.on_clock
         n = 0
         restarts = est.restarts
         navigating = False
-        while (item := await get()) is not None:
+        # every sink's schedule has its next instant at or after quiet_until (sensor us) in
+        # estimator epoch quiet_epoch; -1: ask them
+        quiet_until, quiet_epoch = -1, est.restarts
+        while True:
+            # what is queued is taken without a get() coroutine per sample (issue 18)
+            item = ready.popleft() if ready else await get()
+            if item is None:
+                break
             recv_ns, sample = item
+            host_us = recv_ns // 1000 if recv_ns else None
             # the clock guard holds samples off the current sensor clock until a new clock
-            # is confirmed; usually it hands back just this sample
-            for s in guard(sample, recv_ns // 1000 if recv_ns else None):
+            # is confirmed; usually it hands back just this sample (on_clock: that case
+            # without a list per sample)
+            for s in ((sample,) if type(sample) is ImuSample and on_clock(sample.t_us, host_us)
+                      else guard(sample, host_us)):
                 if self.recorder is not None:
                     self._record(s)
                 t_before = est.t_us
@@ -513,13 +523,22 @@ class Daemon:
                     if not navigating:
                         navigating = True
                         self._nav_since = time.monotonic()
-                    sol: NavSolution | None = None
-                    for sink in sinks:
-                        # the restart count starts a sink's schedule over with the estimator
-                        if sink.schedule.due(est.t_us, est.restarts):
-                            if sol is None:
-                                sol = est.solution()
-                            self._publish(sink, sol, recv_ns)
+                    if est.t_us < quiet_until and est.restarts == quiet_epoch:
+                        # no sink is due before quiet_until in this epoch: each due() would
+                        # say False and change nothing (issue 18: not asked per sample)
+                        pass
+                    else:
+                        sol: NavSolution | None = None
+                        for sink in sinks:
+                            # the restart count starts a sink's schedule over with the
+                            # estimator
+                            if sink.schedule.due(est.t_us, est.restarts):
+                                if sol is None:
+                                    sol = est.solution()
+                                self._publish(sink, sol, recv_ns)
+                        quiet_epoch = est.restarts
+                        quiet_until = min((sink.schedule.next_us for sink in sinks),
+                                          default=-1)
                 if est.restarts != restarts:
                     restarts = est.restarts
                     navigating = est.initialized

@@ -85,6 +85,9 @@ class SampleQueue:
     def __init__(self, maxsize: int, log: RateLimitedLog) -> None:
         self.maxsize = maxsize
         self._q: collections.deque[QueueItem] = collections.deque()
+        # what is queued, for a consumer that takes it without awaiting get() per item
+        # (popleft while non-empty, get() when empty: the same items in the same order)
+        self.ready = self._q
         self._waiter: asyncio.Future[None] | None = None  # the parked consumer, if any
         self._log = log
         self.drops = 0
@@ -93,6 +96,18 @@ class SampleQueue:
 
     def put(self, recv_ns: int, sample: Sample) -> None:
         if self.closed:
+            return
+        q = self._q
+        if len(q) < self.maxsize:  # the usual case of _put, without the call (issue 18)
+            q.append((recv_ns, sample))
+            n = len(q)
+            if n > self.high_water:
+                self.high_water = n
+            w = self._waiter
+            if w is not None:
+                self._waiter = None
+                if not w.done():
+                    w.set_result(None)
             return
         self._put((recv_ns, sample))
 

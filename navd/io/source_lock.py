@@ -112,6 +112,25 @@ class ImuAgreement:
             m = self._others[src] = _Mean()
         m.add(gyro, accel)
 
+    def add_locked(self, now_us: int, gx: float, gy: float, gz: float, ax: float, ay: float,
+                   az: float) -> None:
+        """:meth:`add` of a sample of the locked source, from its components (the decoder's
+        per-sample path, issue 18: no tuples)."""
+        if self._start_us < 0 or now_us < self._start_us:
+            self._restart(now_us)
+        elif now_us - self._start_us >= _WINDOW_US:
+            self._judge()
+            self._restart(now_us)
+        m = self._locked
+        m.n += 1
+        g, a = m.gyro, m.accel
+        g[0] += gx
+        g[1] += gy
+        g[2] += gz
+        a[0] += ax
+        a[1] += ay
+        a[2] += az
+
     def _restart(self, now_us: int) -> None:
         self._start_us = now_us
         self._locked = _Mean()
@@ -180,6 +199,12 @@ class SourceLock:
                      "trusted sources in allow)", kind.upper(), self._text(src),
                      self._text(owner), self._relock_us * 1e-6)
         return False
+
+    def holds(self, kind: str, src: Hashable) -> bool:
+        """Whether ``kind`` is locked to ``src`` now (then :meth:`admit` of ``src`` is True,
+        whatever its time); changes nothing."""
+        cur = self._locked.get(kind)
+        return cur is not None and cur[0] == src
 
     def locked(self, kind: str) -> Hashable | None:
         cur = self._locked.get(kind)

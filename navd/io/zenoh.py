@@ -174,14 +174,16 @@ class ZenohPublisher:
         return self._session
 
     def publish_attitude(self, sol: NavSolution, aligned_sd_rad: float = math.inf) -> None:
-        self._put(self._att, attitude_payload(sol, aligned_sd_rad), "attitude")
+        # attitude_payload puts no non-finite float in (_num): nothing for _scrub to do
+        self._put(self._att, attitude_payload(sol, aligned_sd_rad), "attitude", scrub=False)
 
     def publish_status(self, status: Mapping[str, Any]) -> None:
         self._put(self._status, {**status, "schema": SCHEMA_VERSION}, "status")
 
-    def _put(self, pub: Any, obj: Mapping[str, Any], what: str) -> None:
+    def _put(self, pub: Any, obj: Mapping[str, Any], what: str, *, scrub: bool = True) -> None:
         try:
-            text = json.dumps(_scrub(obj), allow_nan=False, separators=(",", ":"))
+            text = json.dumps(_scrub(obj) if scrub else obj, allow_nan=False,
+                              separators=(",", ":"))
         except (TypeError, ValueError) as exc:
             # A status dict with an unserialisable value is a daemon bug; keep publishing
             # attitude regardless.

@@ -47,7 +47,7 @@ from navd.io.common import (
     Sample,
     all_finite,
 )
-from navd.io.mavlink.frame import MAX_FRAME_BYTES, Frame, FrameScanner, Rejects
+from navd.io.mavlink.frame import HEADER_V2, MAX_FRAME_BYTES, Frame, FrameScanner, Rejects
 from navd.io.mavlink.signing import KEY_LEN, SignatureCheck
 from navd.io.mavlink.wire import (
     LAYOUTS,
@@ -91,6 +91,9 @@ DEFAULT_MAX_DATAGRAM_BYTES = 16384
 MAX_TRACKED_SOURCES = 8
 
 _POL_MSG_ID = pol_wire.MSG_ID
+_HIGHRES_ID = mavlink.MAVLINK_MSG_ID_HIGHRES_IMU
+_HIGHRES_SIZE = LAYOUTS[_HIGHRES_ID].unpacker.size
+_HIGHRES_UNPACK = LAYOUTS[_HIGHRES_ID].unpacker.unpack
 _IGN = (
     mavlink.GPS_INPUT_IGNORE_FLAG_ALT,
     mavlink.GPS_INPUT_IGNORE_FLAG_VEL_HORIZ,
@@ -269,6 +272,13 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         for name in cfg.imu_messages | cfg.gnss_messages:
             msgid: int = getattr(mavlink, f"MAVLINK_MSG_ID_{name}")
             self._handlers[msgid] = (LAYOUTS[msgid], getattr(self, f"_on_{name.lower()}"))
+        # HIGHRES_IMU datagrams of an unsigned link stamped with sensor time take
+        # _highres_imu_datagram (issue 18), with these settings at hand
+        self._highres_fast = (_HIGHRES_ID in self._handlers and check is None
+                              and not cfg.use_receive_time)
+        self._allow = cfg.allow
+        self._want_imu_id = cfg.imu_id
+        self._updated_mask = _HIGHRES_ACC_GYRO if cfg.require_fields_updated else 0
 
     def reset(self) -> None:
         """Forget partial frames, IMU time lines and sequence numbers (e.g. after a link
@@ -296,6 +306,10 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
             self._reject("oversize", "datagram of %d bytes (limit %d)", len(data),
                          self.config.max_datagram_bytes)
             return []
+        if self._highres_fast:
+            s = self._highres_imu_datagram(data, recv_t_us)
+            if s is not None:
+                return [s]
         # Most datagrams are exactly one frame: checked and decoded without the scan's
         # bookkeeping (anything else, including a frame refused here, goes the long way).
         f = self._scanner.whole(data)
@@ -321,6 +335,54 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         c["datagrams"] = c.get("datagrams", 0) + 1
         self.last_junk = 0
         return self._one_frame(f, recv_t_us)
+
+    def _highres_imu_datagram(self, data: bytes, recv_t_us: int) -> ImuSample | None:
+        """The kHz path (issue 18): a datagram that is one unsigned HIGHRES_IMU frame of an
+        accepted source, carrying a sample that passes every check and continues its time
+        line, decoded straight to its ImuSample with the same counting as
+        ``_one_frame`` -> ``_on_frame`` -> ``_on_highres_imu`` -> ``_imu_sample``.  None,
+        with nothing changed, for anything else (the general path then decodes it and
+        counts what is wrong): every test runs before the first count."""
+        if not self._scanner.is_unsigned_v2(data, _HIGHRES_ID):
+            return None
+        src = (data[5], data[6])
+        source = self._sources.get(src)
+        allow = self._allow
+        if source is None or (allow is not None and src not in allow):
+            return None
+        payload = data[HEADER_V2:-2]
+        if len(payload) != _HIGHRES_SIZE:
+            payload = payload[:_HIGHRES_SIZE].ljust(_HIGHRES_SIZE, b"\x00")
+        t, ax, ay, az, gx, gy, gz, _, _, _, _, _, _, _, updated, imu_id = _HIGHRES_UNPACK(
+            payload)
+        want = self._want_imu_id
+        mask = self._updated_mask
+        if ((want is not None and imu_id != want) or updated & mask != mask
+                or not 0 < t <= MAX_SENSOR_T_US):
+            return None
+        # plausible.imu_reason's test, which passes None
+        mg, ma = self._max_gyro, self._max_accel
+        if not (gx * gx + gy * gy + gz * gz <= mg * mg and ax * ax + ay * ay + az * az <= ma * ma):
+            return None
+        lock = self.source_lock
+        if lock is not None and not lock.holds("imu", src):
+            return None
+        key = (src[0], src[1], _HIGHRES_ID, imu_id)
+        imu = self._imu
+        dt_us = imu.continues(key, t)
+        if not dt_us:
+            return None
+        # accepted: the general path's counting, in its order
+        c = self._counts
+        c["frames_ok"] = c.get("frames_ok", 0) + 1
+        self._track(source, data[4])
+        self._recv_us = recv_t_us
+        if lock is not None:
+            lock.admit("imu", src, recv_t_us)
+            lock.imu_agreement.add_locked(recv_t_us, gx, gy, gz, ax, ay, az)
+        sample = imu.step(key, t, dt_us, gx, gy, gz, ax, ay, az)
+        c["imu_ok"] = c.get("imu_ok", 0) + 1
+        return sample
 
     def _one_frame(self, f: Frame, recv_t_us: int) -> list[Sample]:
         """The samples of a datagram that is exactly the valid frame ``f``."""

@@ -234,6 +234,22 @@ class FrameScanner:
             return None
         return f
 
+    def is_unsigned_v2(self, data: bytes, msgid: int) -> bool:
+        """Whether :meth:`whole` would accept ``data`` as one unsigned MAVLink 2 frame of
+        message ``msgid`` (with no frame check configured).  Counts nothing and builds no
+        :class:`Frame`: the decoder's per-sample path reads the header bytes itself (issue
+        18); when False it goes through :meth:`whole` as before."""
+        n = len(data)
+        if (n < 12 or data[7] != msgid & 0xFF or data[8] != msgid >> 8 & 0xFF
+                or data[9] != msgid >> 16 or data[0] != STX_V2 or data[2]
+                or self.check_frame is not None):
+            return False
+        body_end = HEADER_V2 + data[1]
+        if n != body_end + 2:
+            return False
+        extra = self._rev_extra.get(msgid)
+        return extra is not None and _crc_matches(data.translate(_REV8), 0, body_end, extra)
+
     def _skip_reason(self, buf: bytes, p: int) -> str:
         """Why the start byte at ``p`` (at least 9 bytes from the end), passed over by the
         start search, begins no frame."""
