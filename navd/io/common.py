@@ -146,22 +146,20 @@ class RateIntegrator:
             )
         return self._restart("imu_gap", "source %r gap of %d us", key, dt_us)
 
-    def continues(self, key: Hashable, t_us: int) -> int:
-        """The interval :meth:`interval_us` would give ``t_us`` when it simply continues
-        ``key``'s time line (0 < interval <= max_gap_us), else 0; changes nothing."""
+    def advance(self, key: Hashable, t_us: int, gx: float, gy: float, gz: float, ax: float,
+                ay: float, az: float) -> ImuSample | None:
+        """:meth:`push` of a sample that simply continues ``key``'s time line (0 < interval
+        <= max_gap_us), from its components (the decoders' per-sample path, issue 18); None,
+        nothing changed, for any other (then :meth:`push` sorts it out)."""
         last = self._last_t_us.get(key)
         if last is None:
-            return 0
+            return None
         dt_us = t_us - last
-        return dt_us if 0 < dt_us <= self._max_gap_us else 0
-
-    def step(self, key: Hashable, t_us: int, dt_us: int, gx: float, gy: float, gz: float,
-             ax: float, ay: float, az: float) -> ImuSample:
-        """:meth:`push` for a sample that continues its time line by ``dt_us`` (what
-        :meth:`continues` returned), from its components (the decoders' per-sample path,
-        issue 18)."""
+        if not 0 < dt_us <= self._max_gap_us:
+            return None
         self._last_t_us[key] = t_us
-        self._new_line.pop(key, None)
+        if self._new_line:
+            self._new_line.pop(key, None)
         dt_s = dt_us * 1e-6
         return ImuSample(t_us, dt_us, gx * dt_s, gy * dt_s, gz * dt_s, ax * dt_s, ay * dt_s,
                          az * dt_s)

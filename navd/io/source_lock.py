@@ -80,16 +80,21 @@ class _Mean:
 
 
 class ImuAgreement:
-    """Compares other IMU streams with the locked one, window by window of receive time."""
+    """Compares other IMU streams with the locked one, window by window of receive time.
 
-    __slots__ = ("_locked", "_others", "_reject", "_start_us", "_text", "contradicting",
-                 "last_diff")
+    The locked stream's window sums are kept in plain attributes (issue 18: it is added to
+    at the IMU rate), in the order :class:`_Mean` would add them.
+    """
+
+    __slots__ = ("_lax", "_lay", "_laz", "_lgx", "_lgy", "_lgz", "_ln", "_others", "_reject",
+                 "_start_us", "_text", "contradicting", "last_diff")
 
     def __init__(self, reject: Rejector, text: Callable[[Hashable], str]) -> None:
         self._reject = reject
         self._text = text
         self._start_us = -1
-        self._locked = _Mean()
+        self._ln = 0
+        self._lgx = self._lgy = self._lgz = self._lax = self._lay = self._laz = 0.0
         self._others: dict[Hashable, _Mean] = {}
         # the source last found to contradict the locked one, and by how much
         self.contradicting: Hashable | None = None
@@ -97,14 +102,10 @@ class ImuAgreement:
 
     def add(self, locked: bool, src: Hashable, now_us: int,
             gyro: tuple[float, float, float], accel: tuple[float, float, float]) -> None:
-        if self._start_us < 0 or now_us < self._start_us:
-            self._restart(now_us)
-        elif now_us - self._start_us >= _WINDOW_US:
-            self._judge()
-            self._restart(now_us)
         if locked:
-            self._locked.add(gyro, accel)
+            self.add_locked(now_us, gyro[0], gyro[1], gyro[2], accel[0], accel[1], accel[2])
             return
+        self._window(now_us)
         m = self._others.get(src)
         if m is None:
             if len(self._others) >= MAX_OTHERS:
@@ -116,28 +117,39 @@ class ImuAgreement:
                    az: float) -> None:
         """:meth:`add` of a sample of the locked source, from its components (the decoder's
         per-sample path, issue 18: no tuples)."""
+        start = self._start_us
+        if start < 0 or now_us < start or now_us - start >= _WINDOW_US:
+            self._window(now_us)
+        self._ln += 1
+        self._lgx += gx
+        self._lgy += gy
+        self._lgz += gz
+        self._lax += ax
+        self._lay += ay
+        self._laz += az
+
+    def locked_mean(self) -> _Mean:
+        """The locked stream's sums over the present window."""
+        return _Mean(self._ln, [self._lgx, self._lgy, self._lgz],
+                     [self._lax, self._lay, self._laz])
+
+    def _window(self, now_us: int) -> None:
+        """Start the first window, or a new one when ``now_us`` is past the present one
+        (judging it) or before it."""
         if self._start_us < 0 or now_us < self._start_us:
             self._restart(now_us)
         elif now_us - self._start_us >= _WINDOW_US:
             self._judge()
             self._restart(now_us)
-        m = self._locked
-        m.n += 1
-        g, a = m.gyro, m.accel
-        g[0] += gx
-        g[1] += gy
-        g[2] += gz
-        a[0] += ax
-        a[1] += ay
-        a[2] += az
 
     def _restart(self, now_us: int) -> None:
         self._start_us = now_us
-        self._locked = _Mean()
+        self._ln = 0
+        self._lgx = self._lgy = self._lgz = self._lax = self._lay = self._laz = 0.0
         self._others.clear()
 
     def _judge(self) -> None:
-        ref = self._locked
+        ref = self.locked_mean()
         if ref.n < _MIN_SAMPLES:
             return
         for src, m in self._others.items():
@@ -200,11 +212,16 @@ class SourceLock:
                      self._text(owner), self._relock_us * 1e-6)
         return False
 
-    def holds(self, kind: str, src: Hashable) -> bool:
-        """Whether ``kind`` is locked to ``src`` now (then :meth:`admit` of ``src`` is True,
-        whatever its time); changes nothing."""
+    def admit_locked(self, kind: str, src: Hashable, now_us: int) -> bool:
+        """:meth:`admit` when ``kind`` is locked to ``src`` (True, the same bookkeeping);
+        False, nothing changed, otherwise (then ask :meth:`admit`).  Repeating it, or an
+        :meth:`admit`, with the same arguments changes nothing more."""
         cur = self._locked.get(kind)
-        return cur is not None and cur[0] == src
+        if cur is None or cur[0] != src:
+            return False
+        if now_us > cur[1]:
+            self._locked[kind] = (src, now_us)
+        return True
 
     def locked(self, kind: str) -> Hashable | None:
         cur = self._locked.get(kind)

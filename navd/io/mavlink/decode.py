@@ -340,9 +340,10 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         """The kHz path (issue 18): a datagram that is one unsigned HIGHRES_IMU frame of an
         accepted source, carrying a sample that passes every check and continues its time
         line, decoded straight to its ImuSample with the same counting as
-        ``_one_frame`` -> ``_on_frame`` -> ``_on_highres_imu`` -> ``_imu_sample``.  None,
-        with nothing changed, for anything else (the general path then decodes it and
-        counts what is wrong): every test runs before the first count."""
+        ``_one_frame`` -> ``_on_frame`` -> ``_on_highres_imu`` -> ``_imu_sample``.  None
+        for anything else, and then the general path decodes it and counts what is wrong:
+        nothing is counted before the sample is known to be accepted, and what the source
+        lock and the integrator did by then their general path repeats without effect."""
         if not self._scanner.is_unsigned_v2(data, _HIGHRES_ID):
             return None
         src = (data[5], data[6])
@@ -362,15 +363,15 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
             return None
         # plausible.imu_reason's test, which passes None
         mg, ma = self._max_gyro, self._max_accel
-        if not (gx * gx + gy * gy + gz * gz <= mg * mg and ax * ax + ay * ay + az * az <= ma * ma):
+        if not (gx * gx + gy * gy + gz * gz <= mg * mg
+                and ax * ax + ay * ay + az * az <= ma * ma):
             return None
         lock = self.source_lock
-        if lock is not None and not lock.holds("imu", src):
+        if lock is not None and not lock.admit_locked("imu", src, recv_t_us):
             return None
-        key = (src[0], src[1], _HIGHRES_ID, imu_id)
-        imu = self._imu
-        dt_us = imu.continues(key, t)
-        if not dt_us:
+        sample = self._imu.advance((src[0], src[1], _HIGHRES_ID, imu_id), t, gx, gy, gz, ax,
+                                   ay, az)
+        if sample is None:
             return None
         # accepted: the general path's counting, in its order
         c = self._counts
@@ -378,9 +379,7 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         self._track(source, data[4])
         self._recv_us = recv_t_us
         if lock is not None:
-            lock.admit("imu", src, recv_t_us)
             lock.imu_agreement.add_locked(recv_t_us, gx, gy, gz, ax, ay, az)
-        sample = imu.step(key, t, dt_us, gx, gy, gz, ax, ay, az)
         c["imu_ok"] = c.get("imu_ok", 0) + 1
         return sample
 

@@ -240,15 +240,17 @@ class FrameScanner:
         :class:`Frame`: the decoder's per-sample path reads the header bytes itself (issue
         18); when False it goes through :meth:`whole` as before."""
         n = len(data)
-        if (n < 12 or data[7] != msgid & 0xFF or data[8] != msgid >> 8 & 0xFF
-                or data[9] != msgid >> 16 or data[0] != STX_V2 or data[2]
+        if (n < 12 or data[0] != STX_V2 or data[2] or n != data[1] + HEADER_V2 + 2
+                or data[7] | data[8] << 8 | data[9] << 16 != msgid
                 or self.check_frame is not None):
             return False
-        body_end = HEADER_V2 + data[1]
-        if n != body_end + 2:
-            return False
         extra = self._rev_extra.get(msgid)
-        return extra is not None and _crc_matches(data.translate(_REV8), 0, body_end, extra)
+        if extra is None:
+            return False
+        # _crc_matches without the call
+        rev = data.translate(_REV8)
+        return (binascii.crc_hqx(extra, binascii.crc_hqx(rev[1:n - 2], 0xFFFF))
+                == rev[n - 2] << 8 | rev[n - 1])
 
     def _skip_reason(self, buf: bytes, p: int) -> str:
         """Why the start byte at ``p`` (at least 9 bytes from the end), passed over by the

@@ -183,15 +183,18 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
             if junk:
                 self._note_junk(addr, junk, now)
         if samples:
-            if len(self._useful) >= _MAX_PEERS and addr not in self._useful:
-                self._useful.clear()
-            self._useful[addr] = now
+            useful = self._useful
+            if len(useful) >= _MAX_PEERS and addr not in useful:
+                useful.clear()
+            useful[addr] = now
             pacer = self.pacer
-            if pacer is not None:
-                for s in samples:
-                    if type(s) is ImuSample:
-                        pacer.note(s.t_us, now)
-        self._deliver(samples)
+            on_sample = self.on_sample
+            # what _deliver does, without the call (issue 18)
+            for s in samples:
+                if pacer is not None and type(s) is ImuSample:
+                    pacer.note(s.t_us, now)
+                if on_sample is not None:
+                    on_sample(s)
 
     def _is_muted(self, addr: tuple[Any, ...], now: int) -> bool:
         """Whether ``addr``, its host or all senders are muted for junk (see _note_junk),
