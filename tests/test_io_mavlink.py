@@ -788,3 +788,45 @@ def test_one_datagram_per_output_instant() -> None:
     assert [m.get_type() for m in msgs] == ["ATTITUDE", "ATTITUDE_QUATERNION",
                                            "GLOBAL_POSITION_INT"]
     assert len({m.time_boot_ms for m in msgs}) == 1
+
+
+def test_attitude_frames_are_byte_for_byte_pymavlinks() -> None:
+    """ATTITUDE and ATTITUDE_QUATERNION are packed by navd itself (issue 18, every output
+    instant): the bytes must be pymavlink's, sequence numbers and trailing-zero cutting
+    included, for ordinary, zero, negative-zero and non-finite values."""
+    import random
+
+    rng = random.Random(7)
+    enc = MavlinkEncoder(sysid=42, compid=191)
+    ref = mav.MAVLink(None, srcSystem=42, srcComponent=191)
+
+    def ref_pack(msg: object) -> bytes:
+        buf: bytes = msg.pack(ref)  # type: ignore[attr-defined]
+        ref.seq = (ref.seq + 1) & 0xFF
+        return buf
+
+    specials = [0.0, -0.0, math.nan, math.inf, -math.inf, 1e-40, 3.0e38]
+    for k in range(600):  # past a sequence-number wrap
+        def v() -> float:
+            return rng.choice(specials) if rng.random() < 0.3 else rng.uniform(-4.0, 4.0)
+        sol = solution(quat_nb=(v(), v(), v(), v()), roll_rad=v(), pitch_rad=v(), yaw_rad=v(),
+                       rate_b=(v(), v(), v()))
+        ms = rng.choice([0, 1, k * 20, 0xFFFFFFFF, 0x1_0000_0005])
+        p, q, r = sol.rate_b
+        assert enc.encode_attitude(sol, ms) == ref_pack(ref.attitude_encode(
+            ms & 0xFFFFFFFF, sol.roll_rad, sol.pitch_rad, sol.yaw_rad, p, q, r))
+        w, x, y, z = sol.quat_nb
+        assert enc.encode_attitude_quaternion(sol, ms) == ref_pack(ref.attitude_quaternion_encode(
+            ms & 0xFFFFFFFF, w, x, y, z, p, q, r, (1.0, 0.0, 0.0, 0.0)))
+        if k % 50 == 0:  # the pymavlink-packed messages share the sequence
+            assert enc.encode_heartbeat() == ref_pack(ref.heartbeat_encode(
+                mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0,
+                mav.MAV_STATE_ACTIVE))
+    zero = solution(quat_nb=(0.0, 0.0, 0.0, 0.0), roll_rad=0.0, pitch_rad=0.0, yaw_rad=0.0,
+                    rate_b=(0.0, 0.0, 0.0))
+    assert enc.encode_attitude(zero, 0) == ref_pack(ref.attitude_encode(0, 0, 0, 0, 0, 0, 0))
+    big = solution(roll_rad=1e39)
+    with pytest.raises(OverflowError):
+        enc.encode_attitude(big, 0)
+    with pytest.raises(OverflowError):
+        ref.attitude_encode(0, 1e39, 0, 0, 0, 0, 0).pack(ref)

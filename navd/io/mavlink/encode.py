@@ -14,10 +14,12 @@ MavlinkSender`'s job, so the encoder can be tested and benchmarked without a soc
 from __future__ import annotations
 
 import math
+import struct
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from navd.io.mavlink.frame import crc_x25
 from navd.types import NavSolution
 
 __all__ = ["MAV_CMD_EXTERNAL_ATTITUDE_ESTIMATE", "MavlinkEncoder"]
@@ -25,6 +27,17 @@ __all__ = ["MAV_CMD_EXTERNAL_ATTITUDE_ESTIMATE", "MavlinkEncoder"]
 UINT16_MAX = 0xFFFF  # "unknown" in GLOBAL_POSITION_INT.hdg
 # MAVLink development.xml (mavlink/mavlink PR #2334, 2025); pymavlink 2.4.x has no constant
 MAV_CMD_EXTERNAL_ATTITUDE_ESTIMATE = 620
+
+
+# The outputs sent at every output instant, packed here rather than through pymavlink's
+# message objects (issue 18); tests/test_io_mavlink.py checks them byte for byte against it.
+_HEADER_V2 = struct.Struct("<BBBBBBBHB")
+_CRC = struct.Struct("<H")
+_ATTITUDE = (mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLink_attitude_message.crc_extra,
+             mavlink.MAVLink_attitude_message.unpacker.pack)
+_ATTITUDE_Q = (mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION,
+               mavlink.MAVLink_attitude_quaternion_message.crc_extra,
+               mavlink.MAVLink_attitude_quaternion_message.unpacker.pack)
 
 
 def _clamp_int(x: float, lo: int, hi: int) -> int:
@@ -60,22 +73,29 @@ class MavlinkEncoder:
         self._mav.seq = (self._mav.seq + 1) & 0xFF
         return buf
 
+    def _frame(self, msgid: int, crc_extra: int, payload: bytes) -> bytes:
+        """What pymavlink's MAVLink 2 ``pack`` makes of ``payload`` (trailing zero bytes cut,
+        at least one kept; unsigned), with this source's ids and next sequence number."""
+        mav = self._mav
+        body = payload.rstrip(b"\x00") or payload[:1]
+        seq = mav.seq
+        frame = _HEADER_V2.pack(0xFD, len(body), 0, 0, seq, mav.srcSystem, mav.srcComponent,
+                                msgid & 0xFFFF, msgid >> 16) + body
+        mav.seq = (seq + 1) & 0xFF
+        return frame + _CRC.pack(crc_x25(frame[1:], crc_extra))
+
     def encode_attitude(self, sol: NavSolution, time_boot_ms: int) -> bytes:
         p, q, r = sol.rate_b
-        return self._pack(
-            self._mav.attitude_encode(
-                time_boot_ms & 0xFFFFFFFF, sol.roll_rad, sol.pitch_rad, sol.yaw_rad, p, q, r
-            )
-        )
+        msgid, extra, pack = _ATTITUDE
+        return self._frame(msgid, extra, pack(time_boot_ms & 0xFFFFFFFF, sol.roll_rad,
+                                              sol.pitch_rad, sol.yaw_rad, p, q, r))
 
     def encode_attitude_quaternion(self, sol: NavSolution, time_boot_ms: int) -> bytes:
         w, x, y, z = sol.quat_nb
         p, q, r = sol.rate_b
-        return self._pack(
-            self._mav.attitude_quaternion_encode(
-                time_boot_ms & 0xFFFFFFFF, w, x, y, z, p, q, r, (1.0, 0.0, 0.0, 0.0)
-            )
-        )
+        msgid, extra, pack = _ATTITUDE_Q
+        return self._frame(msgid, extra, pack(time_boot_ms & 0xFFFFFFFF, w, x, y, z, p, q, r,
+                                              1.0, 0.0, 0.0, 0.0))
 
     def encode_heartbeat(self, system_status: int = mavlink.MAV_STATE_ACTIVE) -> bytes:
         return self._pack(
