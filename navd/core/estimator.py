@@ -388,13 +388,24 @@ class Estimator:
                     self._reset_state("reinit_time_jump")
         self.t_us = t_us
         cnt["imu"] += 1
-        if rest_push(self._rest_acc, dtx, dty, dtz, dvx, dvy, dvz, dt,
-                     self.gyro_rest.window_s):
+        t = float(t_us)
+        if self._stage != _WAIT:
+            # rest detector and step in one kernel call, unless a rest window completes
+            # (then it is closed first and the step follows, as for a waiting estimator)
+            if not st.rest_then_step(self._rest_acc, self._buf, t, dtx, dty, dtz, dvx, dvy,
+                                     dvz, dt, self.gyro_rest.window_s, self._coning,
+                                     self._cov_interval):
+                if self._bank_buf is not None:
+                    bank_imu(self._bank_buf, self._buf, t, dt)
+                self._imu_dt_us = dt_us
+                return True
+            self.gyro_rest.window_done(self)
+        elif rest_push(self._rest_acc, dtx, dty, dtz, dvx, dvy, dvz, dt,
+                       self.gyro_rest.window_s):
             self.gyro_rest.window_done(self)
         if self._stage == _WAIT:
             self._level(s, dt)
             return False
-        t = float(t_us)
         st.imu_step(self._buf, t, dtx, dty, dtz, dvx, dvy, dvz, dt, self._coning,
                     self._cov_interval)
         if self._bank_buf is not None:

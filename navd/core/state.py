@@ -15,6 +15,7 @@ import numpy.typing as npt
 from navd.core import kalman
 from navd.core._jit import jit
 from navd.core.aiding import gnss_heading, gnss_position, gnss_velocity
+from navd.core.aiding.gyro_rest import rest_push
 from navd.core.rotation import exp_into
 
 Arr = npt.NDArray[np.float64]
@@ -100,6 +101,19 @@ def imu_step(buf: Arr, t_us: float, dtx: float, dty: float, dtz: float, dvx: flo
     for k in range(15):
         buf[o + 1 + k] = buf[MAT + k]  # MAT, VEL, POS are contiguous
     return done
+
+
+@jit
+def rest_then_step(acc: Arr, buf: Arr, t_us: float, dtx: float, dty: float, dtz: float,
+                   dvx: float, dvy: float, dvz: float, dt: float, window_s: float, coning: bool,
+                   cov_interval: float) -> bool:
+    """A navigating IMU sample in one kernel call (issue 18): :func:`rest_push` into the
+    rest detector's accumulators ``acc``, then :func:`imu_step`, unless the sample
+    completed a rest window: then True, and no step (the caller closes the window first)."""
+    if rest_push(acc, dtx, dty, dtz, dvx, dvy, dvz, dt, window_s):
+        return True
+    imu_step(buf, t_us, dtx, dty, dtz, dvx, dvy, dvz, dt, coning, cov_interval)
+    return False
 
 
 @jit
