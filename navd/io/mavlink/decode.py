@@ -277,6 +277,7 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         self._highres_fast = (_HIGHRES_ID in self._handlers and check is None
                               and not cfg.use_receive_time)
         self._allow = cfg.allow
+        self._max_datagram = cfg.max_datagram_bytes
         self._want_imu_id = cfg.imu_id
         self._updated_mask = _HIGHRES_ACC_GYRO if cfg.require_fields_updated else 0
 
@@ -301,7 +302,7 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         c = self._counts
         c["datagrams"] = c.get("datagrams", 0) + 1
         self.last_junk = 0
-        if len(data) > self.config.max_datagram_bytes:
+        if len(data) > self._max_datagram:
             # Refused unread: its cost must not depend on what an attacker put in it.
             self._reject("oversize", "datagram of %d bytes (limit %d)", len(data),
                          self.config.max_datagram_bytes)
@@ -376,7 +377,13 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         # accepted: the general path's counting, in its order
         c = self._counts
         c["frames_ok"] = c.get("frames_ok", 0) + 1
-        self._track(source, data[4])
+        seq, last = data[4], source.last_seq
+        if last is None or not (seq - last - 1) & 0xFF:  # _track when no frame was lost
+            key = source.frames_key
+            c[key] = c.get(key, 0) + 1
+            source.last_seq = seq
+        else:
+            self._track(source, seq)
         self._recv_us = recv_t_us
         if lock is not None:
             lock.imu_agreement.add_locked(recv_t_us, gx, gy, gz, ax, ay, az)
