@@ -32,6 +32,7 @@ Inputs (all converted to SI, NED / FRD, integer microseconds)
 """
 
 import math
+import struct
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -93,7 +94,10 @@ MAX_TRACKED_SOURCES = 8
 _POL_MSG_ID = pol_wire.MSG_ID
 _HIGHRES_ID = mavlink.MAVLINK_MSG_ID_HIGHRES_IMU
 _HIGHRES_SIZE = LAYOUTS[_HIGHRES_ID].unpacker.size
-_HIGHRES_UNPACK = LAYOUTS[_HIGHRES_ID].unpacker.unpack
+# the HIGHRES_IMU fields the per-sample path reads: time_usec, acc, gyro, (mag, pressures,
+# temperature skipped), fields_updated, id
+_HIGHRES_UNPACK = struct.Struct("<Q6f28xHB").unpack
+assert struct.calcsize("<Q6f28xHB") == _HIGHRES_SIZE
 _IGN = (
     mavlink.GPS_INPUT_IGNORE_FLAG_ALT,
     mavlink.GPS_INPUT_IGNORE_FLAG_VEL_HORIZ,
@@ -355,8 +359,7 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         payload = data[HEADER_V2:-2]
         if len(payload) != _HIGHRES_SIZE:
             payload = payload[:_HIGHRES_SIZE].ljust(_HIGHRES_SIZE, b"\x00")
-        t, ax, ay, az, gx, gy, gz, _, _, _, _, _, _, _, updated, imu_id = _HIGHRES_UNPACK(
-            payload)
+        t, ax, ay, az, gx, gy, gz, updated, imu_id = _HIGHRES_UNPACK(payload)
         want = self._want_imu_id
         mask = self._updated_mask
         if ((want is not None and imu_id != want) or updated & mask != mask
