@@ -253,3 +253,50 @@ def test_reboot_in_the_daemon_still_restarts_once(drive: SimRun) -> None:
     t = np.array([s.t_us for s in got])
     k = int(np.flatnonzero(np.diff(t) < 0)[0]) + 1
     assert t[k] < 1_100_000
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+def test_the_guards_usual_case_shortcut_changes_nothing(seed: int) -> None:
+    """ClockGuard.on_clock (the daemon's per-sample shortcut, issue 18) either does what
+    push would for that sample, or nothing: a guard asked on_clock first and push only when
+    it says False hands out the same samples and ends in the same state as one asked push
+    alone, over stamps that jump, repeat, go back, leave the range and restart."""
+    rng = random.Random(seed)
+    plain, short = ClockGuard(), ClockGuard()
+    t, host = 5_000_000, 1_000_000
+    took = 0
+    for _ in range(20_000):
+        r = rng.random()
+        host += rng.choice([1000, 1000, 1000, 0, 50_000, 3_000_000])
+        if r < 0.90:
+            t += 1000
+            stamp = t
+        elif r < 0.93:
+            stamp = t  # repeated
+        elif r < 0.95:
+            stamp = t - rng.randint(1, 2_000_000)  # back, small or large
+        elif r < 0.97:
+            stamp = t + rng.randint(100_001, 10_000_000)  # a wild jump ahead
+        elif r < 0.98:
+            stamp = rng.choice([0, -5, 1 << 53, 1 << 60])  # out of range
+        elif r < 0.99:
+            t = rng.randint(1, 1_000_000)  # a new clock that goes on
+            stamp = t
+        else:
+            s = GnssSample(t - 20_000, 0.8, 0.1, 100.0, 1.0, 0.0, 0.0, 1.0, 2.0, 0.1)
+            assert plain.push(s, host) == short.push(s, host)
+            continue
+        h = host if rng.random() < 0.9 else None
+        imu = ImuSample(stamp, 1000, 0.0, 0.0, 0.0, 0.0, 0.0, -0.0098)
+        want = plain.push(imu, h)
+        if short.on_clock(stamp, h):
+            took += 1
+            got: list[Sample] = [imu]
+        else:
+            got = short.push(imu, h)
+        assert got == want
+        assert (short.t_us, short._host_at_t, short.pending, dict(short.counters),
+                short.last_change) == (plain.t_us, plain._host_at_t, plain.pending,
+                                       dict(plain.counters), plain.last_change)
+    assert 1_000 < took < 20_000  # both ways taken, often
+    assert plain.counters["clock_wild"] and plain.counters["clock_out_of_range"]
