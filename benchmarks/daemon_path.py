@@ -1,0 +1,167 @@
+"""The daemon's 1 kHz path in one process: bytecode executed per datagram, and what comes out.
+
+    python benchmarks/daemon_path.py [--seconds 20] [--trace 4000] [--top 25] [--pace-ms 0]
+
+The real :class:`navd.daemon.daemon.Daemon` with its sinks open (MAVLink ``udpout`` to a
+local socket nobody reads, Zenoh), fed the datagrams of ``benchmarks/daemon.py`` (car480 with
+a 1 kHz HIGHRES_IMU, 10 Hz GPS_INPUT) straight into the UDP protocol's
+``datagram_received``, 10 per event-loop turn as the paced reader delivers them.  The
+receive clock is the sensor time (a live stream for the clock guard), so every run is the
+same computation.
+
+Prints, after 4 s of warm-up:
+  instructions  Python bytecode instructions and calls per datagram (``sys.settrace`` with
+                opcode events over ``--trace`` datagrams) and the functions that execute
+                most: a load-independent measure of the interpreter's share, which on a
+                shared or slow machine is most of the daemon's CPU (issue 18)
+  CPU           process time per datagram over the rest, without tracing (``--pace-ms``:
+                sleep that long after every 10 datagrams, so caches go cold as in the
+                daemon; 0 = back to back)
+  hashes        of the estimator's state buffer, the MAVLink bytes sent and the Zenoh
+                attitude JSON: equal between two trees means the same outputs
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import hashlib
+import socket
+import sys
+import tempfile
+import time
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from firmware_sim import generate, load_scenario
+from firmware_sim.stream import mavlink_events
+
+
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+async def run(a: argparse.Namespace) -> None:
+    import navd.daemon.sources as sources
+    import navd.io.zenoh as nz
+    from navd.config.daemon import load_daemon_config
+    from navd.daemon.daemon import Daemon, warm_up
+
+    sim = generate(load_scenario("car480", overrides={
+        "imu.rate_hz": 1000.0, "duration_s": a.seconds + 2.0}), seed=1)
+    frames = [(t, f) for t, f, _ in mavlink_events(sim)]
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 24)
+    tmp = Path(tempfile.mkdtemp(prefix="navd-path-"))
+    pz = free_port(socket.SOCK_STREAM)
+    (tmp / "navd.toml").write_text(
+        f'[mavlink]\nlisten = "udpin:127.0.0.1:{free_port()}"\n'
+        f'send = "udpout:127.0.0.1:{rx.getsockname()[1]}"\nnominal_imu_rate_hz = 1000.0\n'
+        f'[zenoh]\nvehicle = "path{pz}"\nlisten = ["tcp/127.0.0.1:{pz}"]\n'
+        "[daemon]\nstatus_period_s = 1000\nlog_period_s = 3600\n")
+
+    zenoh_hash = hashlib.sha1()
+    dumps = nz.json.dumps
+
+    class _Json:  # the Zenoh attitude text, as published
+        @staticmethod
+        def dumps(*args: Any, **kw: Any) -> str:
+            text = dumps(*args, **kw)
+            if '"quat_wxyz"' in text:
+                zenoh_hash.update(text.encode())
+            return text
+
+    nz.json = _Json  # type: ignore[assignment]
+
+    class _Clock:  # the receive clock: host time = sensor time
+        now = 0
+
+        @staticmethod
+        def monotonic_ns() -> int:
+            return _Clock.now
+
+    sources.time = _Clock  # type: ignore[assignment]
+
+    cfg = load_daemon_config(tmp / "navd.toml", [])
+    d = Daemon(cfg, handle_signals=False)
+    warm_up(cfg.nav)
+    await d._open()
+    link = d.sources.mavlink
+    assert link is not None and link._udp is not None
+    receive = link._udp.datagram_received
+    task = asyncio.get_running_loop().create_task(d._estimate())
+    addr = ("127.0.0.1", 14550)
+
+    async def feed(part: list[tuple[int, bytes]], pause_s: float = 0.0) -> None:
+        for i in range(0, len(part), 10):
+            for t_us, datagram in part[i:i + 10]:
+                _Clock.now = 10**12 + t_us * 1000
+                receive(datagram, addr)
+            await asyncio.sleep(pause_s)
+        await asyncio.sleep(0)
+        await asyncio.sleep(0)
+
+    warm = 4400  # 4 s: levelled and navigating
+    await feed(frames[:warm])
+    traced = frames[warm:warm + a.trace]
+    counts = {"call": 0, "opcode": 0}
+    by_fn: dict[str, int] = {}
+
+    def tracer(frame: FrameType, event: str, arg: object) -> Any:
+        counts[event] = counts.get(event, 0) + 1
+        if event == "call":
+            frame.f_trace_opcodes = True
+        elif event == "opcode":
+            code = frame.f_code
+            key = f"{Path(code.co_filename).name}:{code.co_name}"
+            by_fn[key] = by_fn.get(key, 0) + 1
+        return tracer
+
+    sys.settrace(tracer)
+    await feed(traced)
+    sys.settrace(None)
+    rest = frames[warm + a.trace:]
+    c0 = time.process_time()
+    await feed(rest, a.pace_ms * 1e-3)
+    cpu = time.process_time() - c0
+    d.queue.close()
+    await task
+    d._close()
+    rx.setblocking(False)
+    mav_hash, n_out = hashlib.sha1(), 0
+    while True:
+        try:
+            mav_hash.update(rx.recv(65536))
+        except BlockingIOError:
+            break
+        n_out += 1
+    n = len(traced)
+    print(f"per datagram: {counts['opcode'] / n:.1f} bytecode instructions, "
+          f"{counts['call'] / n:.2f} Python calls (over {n} datagrams)")
+    for key, v in sorted(by_fn.items(), key=lambda kv: -kv[1])[:a.top]:
+        print(f"  {v / n:8.1f}  {key}")
+    pace = f", {a.pace_ms:g} ms pause per 10" if a.pace_ms else ", back to back"
+    print(f"CPU {1e6 * cpu / len(rest):.1f} us per datagram over {len(rest)}{pace}")
+    print(f"estimator state {hashlib.sha1(d.est.buf.tobytes()).hexdigest()[:16]}, "
+          f"counters {dict(d.est.counters)}")
+    print(f"outputs: MAVLink {n_out} datagrams {mav_hash.hexdigest()[:16]}, Zenoh attitude "
+          f"{zenoh_hash.hexdigest()[:16]}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=20.0, help="sensor seconds after warm-up")
+    ap.add_argument("--trace", type=int, default=4000, help="datagrams counted by tracing")
+    ap.add_argument("--top", type=int, default=25, help="functions listed")
+    ap.add_argument("--pace-ms", type=float, default=0.0, dest="pace_ms",
+                    help="pause after every 10 datagrams of the timed part")
+    asyncio.run(run(ap.parse_args(argv)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
