@@ -284,6 +284,37 @@ def test_a_short_first_acceleration_aligns_within_10_s(seed: int) -> None:
     assert np.all(np.abs(err[aligned]) < 3.0 * sd[aligned])
 
 
+def test_a_restarted_trial_keeps_its_first_start_for_the_timeout() -> None:
+    """GIVEN the multirotor_manoeuvre scenario after 35 s (the bank has run a trial) with a
+    trial that began 31 s ago and was never trusted,
+    WHEN the trial restarts on the bank's new yaw (a bank still converging moved),
+    THEN the trial goes on (state TRIAL, counted as restarted) but its start time, which the
+    trial_timeout (30 s) runs from, is the first one, not now: a bank that keeps moving
+    below trial_sd can restart it only until then."""
+    from navd.core.aiding import yaw_bank as yb_mod
+
+    run = consumer("multirotor_manoeuvre", 1, 36.0)
+    e = Estimator(cfg("filter.profile=multirotor"))
+    last = None
+    for smp in run.samples():
+        e.push(smp)
+        if isinstance(smp, GnssSample):
+            last = smp
+    yb = e.yaw_bank
+    assert yb is not None and last is not None and e.initialized
+    s = yb._s
+    t = float(last.t_us)
+    s[yb_mod._STATE] = yb_mod.TRIAL
+    s[yb_mod._TRIAL_T0] = t - 31e6
+    s[yb_mod._TRIAL_TRUSTED] = 0.0
+    n0 = e.counters["yaw_bank_trial_restarted"]
+    yb._restart_trial(e, t, last)
+    assert s[yb_mod._STATE] == yb_mod.TRIAL
+    assert s[yb_mod._TRIAL_T0] == t - 31e6
+    assert s[yb_mod._TRIAL_N] == 0.0
+    assert e.counters["yaw_bank_trial_restarted"] == n0 + 1
+
+
 @pytest.mark.parametrize("d", [0.3, -2.6, math.pi])
 def test_a_bank_heading_reset_turns_the_tilt_and_velocity_covariance(d: float) -> None:
     """GIVEN an estimator whose P is a random covariance (tilt correlated with everything,

@@ -291,16 +291,14 @@ class YawBank:
                 s[_AGREE_REF] = off
                 s[_AGREE_N] = 0.0
                 if abs(off) > max(c.agree, 1.5 * sd):
-                    self._begin_trial(est, t, g)
-                    est.counters["yaw_bank_trial_restarted"] += 1
+                    self._restart_trial(est, t, g)
                     return
             if abs(yk.wrap(off - s[_AGREE_REF])) > max(c.agree, 1.5 * sd):
                 if trusted and s[_TRIAL_TRUSTED] != 0.0:
                     self._fail_trial(est, "yaw_bank_trial_failed_bank")
                 else:
                     s[_AGREE_T0] = -1.0
-                    self._begin_trial(est, t, g)
-                    est.counters["yaw_bank_trial_restarted"] += 1
+                    self._restart_trial(est, t, g)
                 return
             self._agree_step(t, off, res)
             rec = est.innov[INNOV_VEL]
@@ -426,6 +424,15 @@ class YawBank:
         s[_TRIAL_NIS] = 0.0
         s[_TRIAL_N] = 0.0
         s[_TRIAL_TRUSTED] = 1.0 if self.sd <= self.c.trust_sd else 0.0
+
+    def _restart_trial(self, est: Estimator, t: float, g: GnssSample) -> None:
+        """The trial again from the bank's present yaw, the bank's weights kept; the
+        timeout still runs from the first start, so a bank that keeps moving below
+        trial_sd without ever being trusted fails after trial_timeout."""
+        t0 = float(self._s[_TRIAL_T0])
+        self._begin_trial(est, t, g)
+        self._s[_TRIAL_T0] = t0
+        est.counters["yaw_bank_trial_restarted"] += 1
 
     def _fail_trial(self, est: Estimator, reason: str) -> None:
         s = self._s
