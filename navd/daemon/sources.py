@@ -95,21 +95,8 @@ class SampleQueue:
         self.closed = False
 
     def put(self, recv_ns: int, sample: Sample) -> None:
-        if self.closed:
-            return
-        q = self._q
-        if len(q) < self.maxsize:  # the usual case of _put, without the call (issue 18)
-            q.append((recv_ns, sample))
-            n = len(q)
-            if n > self.high_water:
-                self.high_water = n
-            w = self._waiter
-            if w is not None:
-                self._waiter = None
-                if not w.done():
-                    w.set_result(None)
-            return
-        self._put((recv_ns, sample))
+        if not self.closed:
+            self._put((recv_ns, sample))
 
     def _put(self, item: QueueItem) -> None:
         q = self._q
