@@ -35,8 +35,7 @@ BUDGET_DATAGRAMS = {"port": HOST_JUNK_BUDGET_BYTES // JUNK_BYTES + 1,
                     "host": TOTAL_JUNK_BUDGET_BYTES // JUNK_BYTES + 1}
 
 
-def rotating_flood(pattern: str, vary: str, t0_us: int, dur_us: int
-                   ) -> list[tuple[int, bytes, tuple[Any, ...]]]:
+def rotating_flood(pattern: str, vary: str, t0_us: int, dur_us: int) -> list[Event]:
     """(receive time us, datagram, source address) of a 10 Mbit/s junk flood of 280-byte
     datagrams that takes a new source port (``vary="port"``, host 127.0.0.1) or a new
     source host (``"host"``, 127.0.x.y) every PER_SOURCE datagrams."""
@@ -51,6 +50,27 @@ def rotating_flood(pattern: str, vary: str, t0_us: int, dur_us: int
     return out
 
 
+Event = tuple[int, bytes, tuple[Any, ...]]
+
+
+def receive(events: list[Event]) -> tuple[list[Sample], dict[str, int]]:
+    """Feed (receive time us, datagram, source address) events to a fresh UDP link with the
+    default decoder, its clock at each event's time; the samples it delivered and the
+    decoder's counters."""
+    got: list[Sample] = []
+
+    async def go() -> dict[str, int]:
+        clock = {"us": 0}
+        dec = MavlinkDecoder()
+        p = MavlinkUdpProtocol(dec, got.append, clock_us=lambda: clock["us"])
+        for t, data, addr in events:
+            clock["us"] = t
+            p.datagram_received(data, addr)
+        return dec.counters.snapshot()
+
+    return got, asyncio.run(go())
+
+
 def test_junk_flooder_is_muted_and_the_real_sender_is_not() -> None:
     """GIVEN a UDP link receiving the real sender's frames from one address and, between them,
     280-byte FE/FD-dense junk datagrams from another (2 per real frame, 10 s),
@@ -61,27 +81,12 @@ def test_junk_flooder_is_muted_and_the_real_sender_is_not() -> None:
     frames = [(t, f) for t, f, _ in mavlink_events(car_run(10.0))]
     junk = (b"\xfe\x01\xfd" * 94)[:280]
     real_addr, bad_addr = ("127.0.0.1", 5000), ("127.0.0.1", 6000)
+    real = [(t, f, real_addr) for t, f in frames]
+    flooded = [e for t, f in frames
+               for e in ((t, f, real_addr), (t + 1, junk, bad_addr), (t + 2, junk, bad_addr))]
 
-    def receive(flood: bool) -> tuple[list[Sample], dict[str, int]]:
-        got: list[Sample] = []
-        clock = {"us": 0}
-
-        async def go() -> dict[str, int]:
-            dec = MavlinkDecoder()
-            p = MavlinkUdpProtocol(dec, got.append, clock_us=lambda: clock["us"])
-            for t, f in frames:
-                clock["us"] = t
-                p.datagram_received(f, real_addr)
-                if flood:
-                    for k in (1, 2):
-                        clock["us"] = t + k
-                        p.datagram_received(junk, bad_addr)
-            return dec.counters.snapshot()
-
-        return got, asyncio.run(go())
-
-    clean, _ = receive(False)
-    got, c = receive(True)
+    clean, _ = receive(real)
+    got, c = receive(flooded)
     assert got == clean and len(got) > 1000
     n_junk = 2 * len(frames)
     # the budget is read once per mute period at most (10 s / MUTE_US of them); the rest is
@@ -98,21 +103,9 @@ def test_an_address_that_delivers_samples_is_not_muted() -> None:
     THEN that address is not muted (its samples keep coming; the junk costs CPU instead)."""
     frames = [(t, f) for t, f, _ in mavlink_events(car_run(5.0))]
     junk = (b"\xfe\x01\xfd" * 94)[:280]
-    got: list[Sample] = []
-    clock = {"us": 0}
-
-    async def go() -> dict[str, int]:
-        dec = MavlinkDecoder()
-        p = MavlinkUdpProtocol(dec, got.append, clock_us=lambda: clock["us"])
-        for t, f in frames:
-            clock["us"] = t
-            p.datagram_received(f, ("127.0.0.1", 5000))
-            for k in (1, 2, 3):
-                clock["us"] = t + k
-                p.datagram_received(junk, ("127.0.0.1", 5000))
-        return dec.counters.snapshot()
-
-    c = asyncio.run(go())
+    addr = ("127.0.0.1", 5000)
+    _, c = receive([e for t, f in frames
+                    for e in ((t, f, addr), *((t + k, junk, addr) for k in (1, 2, 3)))])
     assert c.get("datagrams_muted", 0) == 0 and c.get("peer_muted", 0) == 0, c
     assert c["imu_ok"] >= 490, c
 
@@ -131,17 +124,7 @@ def test_a_flood_that_changes_its_source_is_budgeted_by_host_and_in_all(
     unscanned and counted, each muting is counted and logged rate-limited."""
     caplog.set_level(logging.WARNING, "navd.io.mavlink")
     flood = rotating_flood(pattern, vary, 0, 3_000_000)
-
-    async def go() -> dict[str, int]:
-        clock = {"us": 0}
-        dec = MavlinkDecoder()
-        p = MavlinkUdpProtocol(dec, lambda s: None, clock_us=lambda: clock["us"])
-        for t, data, addr in flood:
-            clock["us"] = t
-            p.datagram_received(data, addr)
-        return dec.counters.snapshot()
-
-    c = asyncio.run(go())
+    _, c = receive(flood)
     scanned = c.get("datagrams_damaged", 0)
     assert scanned + c.get("datagrams_muted", 0) == len(flood), c
     # the flood starts a budget window, is muted for MUTE_US, and again: 3 windows in 3 s
@@ -170,22 +153,6 @@ def test_the_real_stream_flows_while_junk_comes_from_its_host_on_other_ports(
     frames = [(t + shift, f, ("127.0.0.1", 5000)) for t, f, _ in mavlink_events(run)]
     flood = rotating_flood("FE 01 FD", vary, 1_000_000 if start == "before" else 0, 4_000_000)
     mixed = sorted(frames + flood, key=lambda e: e[0])
-
-    def receive(events: list[tuple[int, bytes, tuple[Any, ...]]]
-                ) -> tuple[list[Sample], dict[str, int]]:
-        got: list[Sample] = []
-
-        async def go() -> dict[str, int]:
-            clock = {"us": 0}
-            dec = MavlinkDecoder()
-            p = MavlinkUdpProtocol(dec, got.append, clock_us=lambda: clock["us"])
-            for t, data, addr in events:
-                clock["us"] = t
-                p.datagram_received(data, addr)
-            return dec.counters.snapshot()
-
-        return got, asyncio.run(go())
-
     clean, _ = receive(frames)
     got, c = receive(mixed)
     assert got == clean and len(got) > 500
