@@ -36,12 +36,7 @@ from typing import Any
 
 from firmware_sim import generate, load_scenario
 from firmware_sim.stream import mavlink_events
-
-
-def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+from navd.cli.demo import free_port
 
 
 async def run(a: argparse.Namespace) -> None:

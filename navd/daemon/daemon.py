@@ -523,11 +523,9 @@ class Daemon:
                     if not navigating:
                         navigating = True
                         self._nav_since = time.monotonic()
-                    if est.t_us < quiet_until and est.restarts == quiet_epoch:
-                        # no sink is due before quiet_until in this epoch: each due() would
-                        # say False and change nothing (issue 18: not asked per sample)
-                        pass
-                    else:
+                    # before quiet_until in its epoch no sink is due: each due() would say
+                    # False and change nothing (issue 18: not asked per sample)
+                    if est.t_us >= quiet_until or est.restarts != quiet_epoch:
                         sol: NavSolution | None = None
                         for sink in sinks:
                             # the restart count starts a sink's schedule over with the

@@ -294,7 +294,7 @@ class YawBank:
                     self._restart_trial(est, t, g)
                     return
             if abs(yk.wrap(off - s[_AGREE_REF])) > max(c.agree, 1.5 * sd):
-                if trusted and s[_TRIAL_TRUSTED] != 0.0:
+                if trusted:  # (and so marked trusted in this trial, just above)
                     self._fail_trial(est, "yaw_bank_trial_failed_bank")
                 else:
                     s[_AGREE_T0] = -1.0

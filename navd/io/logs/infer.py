@@ -12,8 +12,9 @@ ramp).  A car needs a 58 % grade for that, a fixed wing would stall; a multiroto
 helicopter, or a VTOL in hover: the multirotor profile suits them) does it at every
 take-off.  Anything else stays unknown and the configured profile is kept.
 
-Checked on the real logs and on every simulator scenario (seeds 1-3): see
-tests/test_logs_infer.py.
+Checked on the four real logs and on every simulator scenario, seeds 1-3 (docs/results.md,
+"InertialNav quads"); tests/test_logs_infer.py keeps a take-off, four look-alikes and four
+of the scenarios.
 """
 
 from __future__ import annotations

@@ -247,10 +247,7 @@ class FrameScanner:
         extra = self._rev_extra.get(msgid)
         if extra is None:
             return False
-        # _crc_matches without the call
-        rev = data.translate(_REV8)
-        return (binascii.crc_hqx(extra, binascii.crc_hqx(rev[1:n - 2], 0xFFFF))
-                == rev[n - 2] << 8 | rev[n - 1])
+        return _crc_matches(data.translate(_REV8), 0, n - 2, extra)
 
     def _skip_reason(self, buf: bytes, p: int) -> str:
         """Why the start byte at ``p`` (at least 9 bytes from the end), passed over by the
