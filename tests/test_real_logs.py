@@ -19,6 +19,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -53,21 +54,19 @@ def test_log171_replays_as_the_multirotor_it_says_it_is(tmp_path: Path) -> None:
     """GIVEN log171.bin (ArduCopter 3.3, "APM:Copter V3.3-dev"),
     WHEN `navd replay --log log171.bin --out sol.csv` runs (no other option),
     THEN it says the multirotor profile comes from the log's firmware, and in flight (take-off
-    at 71 s, the crash at 227.7 s) roll/pitch are within 3.95 / 2.75 deg RMS of ATT over more
-    than 7000 rows, and their root sum of squares within 4.46 deg (the previous measurement:
-    no worse in total).
+    at 71 s, the crash at 227.7 s) roll/pitch are within 3.0 / 1.35 deg RMS of ATT over more
+    than 7000 rows, and navd's roll and pitch σ cover their difference from ATT: |difference|
+    > 3σ in at most 5 % of the flight's rows (the issue-14 target).
 
-    Measured 3.57 / 2.46 deg (RSS 4.34; 7724 rows) since a bank trial may start below 15 deg
-    (docs/results.md, session 2026-11-26 evening); before it 4.04 / 1.89 (RSS 4.46), and
-    3.50 / 3.68 (RSS 5.08) before the bank's Jacobian change.  The error is a slowly varying
-    tilt of 2-6 deg that both versions share; which axis carries it depends on the heading
-    the bank aligns to at 85-95 s, so the per-axis bounds are the measured values plus about
-    10 % and the RSS bound keeps the total from growing.  With the ground profile the replay
-    used before, 8.62 / 10.99.  The 1.5 deg expectation is not met: ATT itself leans on the
-    magnetometer (the autopilot's second estimate, AHR2, differs from it by 1.0 / 0.5 deg RMS
-    in flight; docs/results.md, "Real flight: ArduCopter 3.3 DataFlash"), and navd's own gyro
-    bias drifts in flight (docs/results.md, "σ honesty on the real logs")."""
-    err, m = _replay(LOG171, tmp_path)
+    Measured 2.70 / 1.20 deg, beyond 3σ 1.9 / 0.1 % (robustness.py), since the attitude
+    variance carries the sampling error of the log's 50 Hz point-sampled rates
+    (navd.core.kalman.imu_step; docs/results.md, "Point-sampled rates"); before it 3.57 /
+    2.46 deg with 42.5 / 21.9 % beyond 3σ (the filter bent tilt and biases to explain its
+    own integration error at 2-3 rad/s^2).  Bounds: the measured values plus about 10 %.  The
+    1.5 deg expectation is not met on roll: a hover roll offset of ~2 deg remains, of which
+    navd's y accelerometer-bias estimate (-28 mg, 1.6 deg) is a part that ATT cannot show
+    (ArduCopter 3.3's EKF has no x/y accelerometer bias)."""
+    err, m = _replay(LOG171, tmp_path, "--reference-out", str(tmp_path / "ref.csv"))
     assert ("profile multirotor from the log's vehicle type (firmware APM:Copter V3.3-dev "
             "(ae3192b8)); --set filter.profile=... to override") in err, err[-3000:]
     assert m["ref"] == "ATT"
@@ -75,8 +74,25 @@ def test_log171_replays_as_the_multirotor_it_says_it_is(tmp_path: Path) -> None:
     assert m["end"] == "227.7 s (a crash)"
     assert int(m["n"]) > 7000
     roll, pitch = float(m["roll"]), float(m["pitch"])
-    assert roll < 3.95 and pitch < 2.75, m
-    assert (roll**2 + pitch**2) ** 0.5 < 4.46, m
+    assert roll < 3.0 and pitch < 1.35, m
+    beyond = _beyond_3_sigma(tmp_path / "sol.csv", tmp_path / "ref.csv", 71.0, 227.7)
+    assert beyond[0] <= 5.0 and beyond[1] <= 5.0, beyond
+
+
+def _beyond_3_sigma(sol: Path, ref: Path, t0_s: float, t1_s: float) -> tuple[float, float]:
+    """% of the solution rows in [t0_s, t1_s] whose roll (pitch) differs from the reference,
+    interpolated to the row's time, by more than 3 times the row's roll (pitch) σ."""
+    s = np.genfromtxt(sol, delimiter=",", names=True)
+    r = np.genfromtxt(ref, delimiter=",", names=True)
+    t = s["t_us"] * 1e-6
+    keep = (t >= t0_s) & (t <= t1_s)
+    out = []
+    for axis in ("roll", "pitch"):
+        ref_deg = np.degrees(np.unwrap(np.radians(r[f"{axis}_deg"])))
+        diff = s[f"{axis}_deg"][keep] - np.interp(t[keep], r["t_us"] * 1e-6, ref_deg)
+        diff = (diff + 180.0) % 360.0 - 180.0
+        out.append(100.0 * float(np.mean(np.abs(diff) > 3.0 * s[f"{axis}_sd_deg"][keep])))
+    return out[0], out[1]
 
 
 def test_quad123_is_recognised_as_a_multirotor_and_agrees_with_att(tmp_path: Path) -> None:
