@@ -277,3 +277,27 @@ def test_dataflash_reference_is_turned_onto_the_imu_axes_by_ahrs_trim(
     roll_off = np.degrees(q.reference.roll_rad - src.ref_euler[k, 0])
     assert abs(float(np.median(roll_off)) + 1.18) < 0.05
     assert not any("AHRS_TRIM" in n for n in q.notes)
+
+
+def test_dataflash_fixes_are_moved_by_the_latency_the_log_states(src: Source,
+                                                                 tmp_path: Path) -> None:
+    """GIVEN an ArduCopter 3.3 log whose PARM messages state the autopilot's receiver latency
+    (EKF_VEL_DELAY 200 ms, EKF_POS_DELAY 220 ms, as log171's 200/200),
+    WHEN it is read with the default options,
+    THEN every fix is taken as valid 200 ms (the velocity delay) before its stamp, and a note
+    says so; an explicit latency (here 0) overrides the log's, and a log without the
+    parameters is read as stamped."""
+    p = tmp_path / "delay.bin"
+    write_dataflash_ac33(p, src, params={"EKF_VEL_DELAY": 200.0, "EKF_POS_DELAY": 220.0})
+    plain = tmp_path / "plain.bin"
+    write_dataflash_ac33(plain, src)
+    stamped = read_log(plain)
+    d = read_log(p)
+    assert len(d.gnss_t_us) == len(stamped.gnss_t_us) > 10
+    np.testing.assert_array_equal(d.gnss_t_us, stamped.gnss_t_us - 200_000)
+    np.testing.assert_array_equal(d.gnss, stamped.gnss)
+    assert any("200 ms" in n and "EKF_VEL_DELAY" in n for n in d.notes), d.notes
+    assert not any("EKF_VEL_DELAY" in n for n in stamped.notes)
+    explicit = read_log(p, options=LogOptions(gnss_delay_s=0.0))
+    np.testing.assert_array_equal(explicit.gnss_t_us, stamped.gnss_t_us)
+    assert not any("EKF_VEL_DELAY" in n for n in explicit.notes)

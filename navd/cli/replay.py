@@ -344,9 +344,10 @@ def _add_log_arguments(ap: argparse.ArgumentParser) -> None:
                    help="velocity 1-sigma where the log has none, m/s (default %(default)s)")
     g.add_argument("--geoid-sep-m", type=float, default=d.geoid_sep_m,
                    help="geoid undulation added to MSL-only altitudes, m (default %(default)s)")
-    g.add_argument("--gnss-delay-ms", type=float, default=d.gnss_delay_s * 1e3,
+    g.add_argument("--gnss-delay-ms", type=float, default=None,
                    help="receiver latency: fixes are taken as valid this long before their "
-                        "log time stamp, ms (default %(default)s)")
+                        "log time stamp, ms (default: the latency the log states, an "
+                        "ArduPilot log's EKF_VEL_DELAY/EKF_POS_DELAY/GPS_DELAY_MS, else 0)")
 
 
 def _aiding(path: str | None) -> contextlib.AbstractContextManager[AidingWriter | None]:
@@ -385,7 +386,8 @@ def _replay_log(a: argparse.Namespace) -> int:
         return 2
     opts = LogOptions(h_acc_m=a.gnss_h_acc_m, v_acc_m=a.gnss_v_acc_m,
                       vel_acc_mps=a.gnss_vel_acc_mps, geoid_sep_m=a.geoid_sep_m,
-                      gnss_delay_s=a.gnss_delay_ms * 1e-3)
+                      gnss_delay_s=(None if a.gnss_delay_ms is None
+                                    else a.gnss_delay_ms * 1e-3))
     try:
         data = read_log(a.log, a.format, opts)
     except (LogFormatError, ReplayFormatError) as exc:

@@ -92,6 +92,8 @@ class LogOptions:
         altitude (X8, ArduPilot GPS.Alt without GPA.Und, MAVLink alt).
     max_imu_gap_s: a longer interval between rate samples is a gap, not one long hold.
     gnss_delay_s: receiver latency to remove: a fix stamped t (arrival) is valid at t - delay.
+        None: the latency the log itself states, where its format has one (an ArduPilot
+        DataFlash log's EKF_VEL_DELAY / EKF_POS_DELAY / GPS_DELAY_MS), else 0.
     imu_instance, gnss_instance: which sensor instance to read where a log has several.
     """
 
@@ -100,7 +102,7 @@ class LogOptions:
     vel_acc_mps: float = 0.3
     geoid_sep_m: float = 0.0
     max_imu_gap_s: float = 0.1
-    gnss_delay_s: float = 0.0
+    gnss_delay_s: float | None = None
     imu_instance: int = 0
     gnss_instance: int = 0
 
@@ -171,10 +173,14 @@ class SampleBuilder:
         self._imu_t: list[int] = []
         self._imu_dt: list[int] = []
         self._imu_v: list[tuple[float, float, float, float, float, float]] = []
-        self._gnss_delay_us = round(options.gnss_delay_s * 1e6)
+        self._gnss_delay_us = round((options.gnss_delay_s or 0.0) * 1e6)
         self._gnss_t: list[int] = []
         self._gnss_v: list[tuple[float, ...]] = []
         self._gnss_fix: list[int] = []
+
+    def set_gnss_delay(self, delay_s: float) -> None:
+        """Receiver latency for the fixes added from now on (see LogOptions.gnss_delay_s)."""
+        self._gnss_delay_us = round(delay_s * 1e6)
 
     @property
     def last_imu_t_us(self) -> int:
