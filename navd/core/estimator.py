@@ -116,6 +116,7 @@ class Estimator:
         self._q = v.q
         self.work = v.work  # (8, 3, 3) scratch, free between calls (aids use it too)
         self._prev_inc = v.prev_inc
+        self._dprev = v.dprev
         self._acc = v.acc
         self._H = v.H
         self._z = v.z
@@ -186,6 +187,7 @@ class Estimator:
         st.history_reset(self._buf)
         self._imu_dt_us = 0
         self._prev_inc[:] = 0.0
+        self._dprev[:] = 0.0
         self._acc[:] = 0.0
         for aid in self.aids:
             aid.reset()

@@ -195,7 +195,7 @@ def inject(x: Arr, mat_nb: Arr, vel_n: Arr, pos: Arr, bg: Arr, ba: Arr, work: Ar
 
 @jit
 def imu_step(mat_nb: Arr, vel_n: Arr, pos: Arr, dov: Arr, bg: Arr, ba: Arr,
-             inc: Arr, prev_inc: Arr, acc: Arr,
+             inc: Arr, prev_inc: Arr, dprev: Arr, acc: Arr,
              dtx: float, dty: float, dtz: float, dvx: float, dvy: float, dvz: float,
              dt: float, coning: bool, cov_interval: float,
              P: Arr, F: Arr, q: Arr, A: Arr, B: Arr, work: Arr, rate: Arr) -> bool:
@@ -206,13 +206,16 @@ def imu_step(mat_nb: Arr, vel_n: Arr, pos: Arr, dov: Arr, bg: Arr, ba: Arr,
     compensated body rate (rad/s).  Returns True when P was propagated.
 
     Sampling error: an increment made from a point-sampled rate (HIGHRES_IMU, a log's IMU
-    message at 50 Hz) misses what the rate did between samples.  For a rate that changes
-    linearly over the step the rectangle rule is off by half the change of the increment,
-    |inc_k - inc_(k-1)| / 2, which the gyro's noise density knows nothing about: a
-    multirotor at 50 Hz turning at 100 deg/s^2 loses ~0.1 deg per step, tens of times its
-    ARW.  That change, less what the white noise alone makes of it (2 q dt per axis), is
-    added to the attitude variance at each step (spread over the three axes); for true delta
-    angles or a fast sensor it is ~0.
+    message at 50 Hz) misses what the rate did between samples, which the gyro's noise
+    density knows nothing about: a multirotor sampled at 50 Hz whose rate changes by
+    2-3 rad/s^2, and whose vibration aliases into the samples, loses a good fraction of a
+    degree per second.  What a rate that changes linearly over a few steps cannot explain is
+    the second difference of the increments, d2 = inc_k - 2 inc_(k-1) + inc_(k-2) (``dprev``
+    (3,) keeps inc_(k-1) - inc_(k-2)); for true delta angles of a smooth motion it is
+    ~omega'' dt^3, nothing (a ship's swell: 1e-8 rad).  Its square beyond three times what
+    the gyro's white noise alone gives it on average (6 q dt per axis: only ~3 % of the
+    white noise gets through) is added to the attitude variance at each step, /12 per axis
+    (|d2| / 2 squared, over three axes).
     """
     inc[0] = dtx - bg[0] * dt
     inc[1] = dty - bg[1] * dt
@@ -223,12 +226,14 @@ def imu_step(mat_nb: Arr, vel_n: Arr, pos: Arr, dov: Arr, bg: Arr, ba: Arr,
     rate[0] = inc[0] / dt
     rate[1] = inc[1] / dt
     rate[2] = inc[2] / dt
-    d0 = inc[0] - prev_inc[0]
-    d1 = inc[1] - prev_inc[1]
-    d2 = inc[2] - prev_inc[2]
-    sampling = d0 * d0 + d1 * d1 + d2 * d2 - 2.0 * (q[0] + q[1] + q[2]) * dt
+    sampling = -18.0 * (q[0] + q[1] + q[2]) * dt  # 3 x the white noise's mean |d2|^2
+    for i in range(3):
+        d1 = inc[i] - prev_inc[i]
+        d2 = d1 - dprev[i]
+        dprev[i] = d1
+        sampling += d2 * d2
     if sampling > 0.0:
-        sampling /= 12.0  # (|d| / 2)^2 over 3 axes
+        sampling /= 12.0  # (|d2| / 2)^2 over 3 axes
         P[0, 0] += sampling
         P[1, 1] += sampling
         P[2, 2] += sampling

@@ -51,7 +51,8 @@ HIST_LEN = 512  # past nominal states kept: 0.5 s at 1 kHz, 5 s at 100 Hz
 HIST_W = 16  # t_us, C_b^n (9), vel_n (3), pos (3)
 HIST_I = 1207  # index of the newest entry (stored as float); -1 when empty
 HIST = 1208  # ring (HIST_LEN, HIST_W)
-SIZE = HIST + HIST_LEN * HIST_W
+DPREV = HIST + HIST_LEN * HIST_W  # previous change of the angle increment (3,) rad
+SIZE = DPREV + 3
 
 
 class StateViews:
@@ -67,6 +68,7 @@ class StateViews:
         self.bias_g = buf[BG:BG + 3]
         self.bias_a = buf[BA:BA + 3]
         self.prev_inc = buf[PREV:PREV + 6]
+        self.dprev = buf[DPREV:DPREV + 3]
         self.acc = buf[ACC:ACC + 8]
         self.rate_b = buf[RATE:RATE + 3]
         self.lever_b = buf[LEVER:LEVER + 3]
@@ -88,7 +90,8 @@ def imu_step(buf: Arr, t_us: float, dtx: float, dty: float, dtz: float, dvx: flo
     done = kalman.imu_step(
         buf[MAT:MAT + 9].reshape((3, 3)), buf[VEL:VEL + 3], buf[POS:POS + 3],
         buf[DOV:DOV + 3], buf[BG:BG + 3], buf[BA:BA + 3], buf[INC:INC + 6],
-        buf[PREV:PREV + 6], buf[ACC:ACC + 8], dtx, dty, dtz, dvx, dvy, dvz, dt, coning,
+        buf[PREV:PREV + 6], buf[DPREV:DPREV + 3], buf[ACC:ACC + 8], dtx, dty, dtz, dvx, dvy,
+        dvz, dt, coning,
         cov_interval, buf[P:P + 225].reshape((15, 15)), buf[F:F + 225].reshape((15, 15)),
         buf[Q:Q + 15], buf[A:A + 225].reshape((15, 15)), buf[B:B + 225].reshape((15, 15)),
         buf[WORK:WORK + 72].reshape((8, 3, 3)), buf[RATE:RATE + 3])
