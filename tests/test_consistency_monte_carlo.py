@@ -1,9 +1,10 @@
 """Filter consistency (NEES) with the DEFAULT config on the robustness benchmark's Monte Carlo
 car cases (issue 14, "NEES within its band on the Monte Carlo cases").  The figures per case,
 pooled over 5 seeds, are the benchmark's NEES column (docs/results.md); this checks seed 1
-of the car cases where the filter is consistent, so a change that makes it overconfident
-fails here.  Cases where it is not (multirotor heading, 3x IMU noise, Gauss-Markov biases:
-attitude NEES 5-11) are listed as NOT met in docs/results.md, not tested as if they were."""
+of the car cases where the filter is consistent, and the multirotor pooled over its 5 seeds,
+so a change that makes it overconfident fails here.  Cases where it is not (3x IMU noise,
+Gauss-Markov biases: attitude NEES 4-5) are listed as NOT met in docs/results.md, not tested
+as if they were."""
 
 from __future__ import annotations
 
@@ -29,3 +30,46 @@ def test_car_cases_are_consistent(name: str) -> None:
     lo, hi = fig["nees_band"]
     assert lo < fig["nees_vel"] < hi, fig
     assert fig["nees_att"] < hi, fig
+
+
+def test_multirotor_attitude_nees_is_not_above_its_band() -> None:
+    """GIVEN mr_clean (the multirotor scenario, default config, multirotor profile), seeds 1-5
+    as the benchmark pools them,
+    WHEN the attitude NEES is averaged after 60 s,
+    THEN it is not above its 99 % band (measured 2.9 in [2.71, 3.31]).  With the raw
+    accelerometer noise in F it was 3.96: seeds 4 and 5 held a bank-aligned heading 3.5-5 deg
+    off while the noise "told" the filter its heading was right (sigma 1.6-2 deg for 190 s;
+    docs/results.md, "mr_clean: heading information from accelerometer noise")."""
+    case = next(c for c in rb.CASES if c.name == "mr_clean")
+    runs = [rb.score_sim(generate(load_scenario(case.scenario, dict(case.overrides)),
+                                  seed=s, progress=False), case.profile)
+            for s in range(1, 6)]
+    fig = rb.nees_figures(runs)
+    assert fig["nees_att"] < fig["nees_band"][1], fig
+
+
+@pytest.mark.parametrize("seed", [
+    5,
+    pytest.param(4, marks=pytest.mark.xfail(
+        strict=True, reason="seed 4's heading still stays 2.5-3.5 deg off at a 1.7-2.4 deg "
+        "sigma after its legs (mean (err/sigma)^2 2.15): not traced (docs/results.md)")),
+])
+def test_multirotor_heading_sigma_covers_its_error(seed: int) -> None:
+    """GIVEN mr_clean seeds 4 and 5 (default config, multirotor profile: heading from the yaw
+    bank, then from the accelerations of the legs),
+    WHEN the heading's (error / sigma)^2 is averaged over the aligned instants after 60 s,
+    THEN it is not above the 99 % band of a consistent filter's mean (1 dof, one independent
+    sample per 2 s).  With the raw accelerometer noise in F the heading stayed 3.5-5 deg off
+    at a 1.6-2 deg sigma for 190 s (means 4.85 and 3.10, band ~1.4); now 2.15 and 0.85;
+    docs/results.md, "mr_clean: heading information from accelerometer noise"."""
+    from navd.core.chi2 import chi2_quantile
+
+    case = next(c for c in rb.CASES if c.name == "mr_clean")
+    run = generate(load_scenario(case.scenario, dict(case.overrides)), seed=seed,
+                   progress=False)
+    r = rb.score_sim(run, case.profile)
+    m = (r.t_s >= rb.NEES_FROM_S) & r.aligned
+    assert m.sum() > 1000, m.sum()  # aligned for most of the 180 s after 60 s
+    q = float(((r.err_deg[m, 2] / r.sd_deg[m, 2]) ** 2).mean())
+    k = max(1, int((r.t_s[m][-1] - r.t_s[m][0]) / rb.NEES_BLOCK_S))
+    assert q < chi2_quantile(0.995, k) / k, (q, k)

@@ -48,6 +48,7 @@ from navd.core.aiding.gyro_rest import GyroRest, rest_push
 from navd.core.aiding.yaw_bank import YawBank, bank_enabled
 from navd.core.aiding.yaw_bank_kernels import bank_imu, main_yaw, wrap
 from navd.core.earth import geodetic_to_ecef, radii
+from navd.core.kalman import F_TAU_S
 from navd.core.level import level_cov
 from navd.core.output import attitude_outputs
 from navd.core.rotation import euler_to_mat_into
@@ -138,6 +139,8 @@ class Estimator:
         self._max_accel_mps2 = self._limits.max_accel_mps2
         self._gating = c.filter.robust != "none"
         self._coning = c.filter.coning
+        # F's specific force low-passed on a multirotor only (navd/core/kalman.py, F_TAU_S)
+        v.f_lp[6] = F_TAU_S if c.filter.profile == "multirotor" else 0.0
         self._cov_interval = c.filter.cov_interval
 
         # The aids, in the order they see a sample: the gravity model is evaluated at the
@@ -189,6 +192,7 @@ class Estimator:
         self._prev_inc[:] = 0.0
         self._dprev[:] = 0.0
         self._acc[:] = 0.0
+        self._v.f_lp[:6] = 0.0
         for aid in self.aids:
             aid.reset()
         self.gyro_rest.reset()

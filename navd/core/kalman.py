@@ -27,6 +27,31 @@ from navd.core.strapdown import strapdown_step
 Arr = npt.NDArray[np.float64]
 N = 15
 
+# The specific force that F (the error dynamics) uses, on a multirotor: low-passed with a
+# time constant of F_TAU_S, s (navd.core.estimator sets it in f_lp[6]; 0: the raw mean).
+# The velocity error grows as f x phi with the TRUE specific force f; the filter only has the
+# measured one, f + n.  With the raw interval mean the accelerometer noise n is in F's
+# regressor as well as in the process noise it drives, and where the true f is smooth the
+# filter reads "the velocity innovations do not turn with the noise-driven f" as information
+# that its heading is right: in a hover (true horizontal f = 0) it gains ~|n T|^2 / S of
+# heading information per GNSS epoch that is not there, and holds the heading where it is
+# while its sigma shrinks.  At VRW 0.3 m/s/sqrt(s) (the consumer default, and the simulated
+# multirotor's IMU) that is ~0.13 m/s of noise "acceleration" per 0.2 s epoch, against
+# 0.2 m/s from a 1 m/s^2 leg (mr_clean seed 4: heading 4-5 deg off at a 1.6 deg sigma for
+# 190 s; docs/results.md, issue 14).  A multirotor's body-frame specific force is its
+# thrust along body z plus a little drag: smooth, and its horizontal accelerations appear
+# through the attitude.  So f is low-passed in the body frame (its noise falls to
+# VRW / sqrt(2 F_TAU_S)) and rotated with the present attitude (leaning into an acceleration
+# or yawing is not delayed); a change larger than the noise allows (F_SNAP_SD sigmas between
+# an F_FAST_S low-pass and the slow one, ~3 m/s^2 at VRW 0.3: a hard climb or stop) is
+# followed at once.  Cars and fixed wings keep the raw mean: their body-frame specific force
+# changes quickly and for real (braking, bumps, gusts, pull-ups), and low-passing it cost
+# car480 0.05 deg of pitch RMS and the X8 replayed as a ground vehicle 2 deg of pitch
+# against ATT (docs/results.md).  The mechanization is never filtered.
+F_TAU_S = 1.0
+F_FAST_S = 0.1
+F_SNAP_SD = 4.0
+
 
 @jit
 def propagate_cov(P: Arr, F: Arr, q: Arr, T: float, A: Arr, B: Arr) -> None:
@@ -198,12 +223,14 @@ def imu_step(mat_nb: Arr, vel_n: Arr, pos: Arr, dov: Arr, bg: Arr, ba: Arr,
              inc: Arr, prev_inc: Arr, dprev: Arr, acc: Arr,
              dtx: float, dty: float, dtz: float, dvx: float, dvy: float, dvz: float,
              dt: float, coning: bool, cov_interval: float,
-             P: Arr, F: Arr, q: Arr, A: Arr, B: Arr, work: Arr, rate: Arr) -> bool:
+             P: Arr, F: Arr, q: Arr, A: Arr, B: Arr, work: Arr, rate: Arr,
+             f_lp: Arr) -> bool:
     """One IMU sample: bias compensation, strapdown, and covariance propagation when due.
 
     ``acc`` (8,) accumulates (sum dv_b xyz, sum dt, step count, -, -, -) between covariance
-    propagations so F uses the interval's mean specific force.  ``rate`` (3,) receives the
-    compensated body rate (rad/s).  Returns True when P was propagated.
+    propagations; ``f_lp`` (7,) keeps the low-passed body specific force F uses and its time
+    constant (F_TAU_S).  ``rate`` (3,) receives the compensated body rate (rad/s).  Returns
+    True when P was propagated.
 
     Sampling error: an increment made from a point-sampled rate (HIGHRES_IMU, a log's IMU
     message at 50 Hz) misses what the rate did between samples, which the gyro's noise
@@ -256,6 +283,32 @@ def imu_step(mat_nb: Arr, vel_n: Arr, pos: Arr, dov: Arr, bg: Arr, ba: Arr,
     fx = acc[0] / T
     fy = acc[1] / T
     fz = acc[2] / T
+    # F's specific force (see F_TAU_S): the interval's mean, on a multirotor (f_lp[6] > 0)
+    # low-passed in the body frame (f_lp[0:3] slow, f_lp[3:6] fast; all zero: none yet,
+    # start from this interval's), then rotated with the present attitude
+    tau = f_lp[6]
+    if tau > 0.0:
+        if f_lp[0] == 0.0 and f_lp[1] == 0.0 and f_lp[2] == 0.0:
+            f_lp[0] = f_lp[3] = fx
+            f_lp[1] = f_lp[4] = fy
+            f_lp[2] = f_lp[5] = fz
+        else:
+            a = T / (tau + T)
+            b = T / (F_FAST_S + T)
+            d2 = 0.0
+            for i in range(3):
+                fi = fx if i == 0 else (fy if i == 1 else fz)
+                f_lp[i] += a * (fi - f_lp[i])
+                f_lp[3 + i] += b * (fi - f_lp[3 + i])
+                d2 += (f_lp[3 + i] - f_lp[i]) ** 2
+            # per axis, the two low-passes' noise variances are VRW^2 / (2 tau) each
+            vrw2 = max(q[3], q[4], q[5])
+            if d2 > F_SNAP_SD * F_SNAP_SD * vrw2 * (0.5 / F_FAST_S + 0.5 / tau):
+                for i in range(3):
+                    f_lp[i] = f_lp[3 + i]
+        fx = f_lp[0]
+        fy = f_lp[1]
+        fz = f_lp[2]
     for i in range(3):
         f_n[i] = mat_nb[i, 0] * fx + mat_nb[i, 1] * fy + mat_nb[i, 2] * fz
     build_f(F, mat_nb, vel_n, pos, f_n)
