@@ -48,6 +48,7 @@ from navd.core.aiding.gyro_rest import GyroRest, rest_push
 from navd.core.aiding.yaw_bank import YawBank, bank_enabled
 from navd.core.aiding.yaw_bank_kernels import bank_imu, main_yaw, wrap
 from navd.core.earth import geodetic_to_ecef, radii
+from navd.core.imu_block import LIM_AHEAD, LIM_BACK, PUSH_LIMITS, ImuBlock, push_run
 from navd.core.kalman import F_TAU_S
 from navd.core.level import level_cov
 from navd.core.output import attitude_outputs
@@ -161,6 +162,12 @@ class Estimator:
         # aid, before and after its update (core/aiding/yaw_bank.py)
         self.yaw_bank: YawBank | None = YawBank(c) if bank_enabled(c) else None
         self._bank_buf = self.yaw_bank.buf if self.yaw_bank is not None else None
+        # push_imu_block's constants (imu_block.LIM_*; the clock window is the caller's)
+        self._block_lim = np.array([self._max_imu_gap_us, self._max_gyro_rps,
+                                    self._max_accel_mps2, self.gyro_rest.window_s,
+                                    self._cov_interval, 0.0, 0.0])
+        assert self._block_lim.shape == (PUSH_LIMITS,)
+        self._no_bank = np.zeros(1)
 
         self.counters: defaultdict[str, int] = defaultdict(int)
         self.heading_aligned = False
@@ -354,6 +361,38 @@ class Estimator:
         return self._R
 
     # ------------------------------------------------------------------ IMU
+    def push_imu_block(self, block: ImuBlock, stop_at_us: int, clock_t_us: int = -1,
+                       clock_back_us: int = 0, clock_ahead_us: int = 0) -> int:
+        """Push the block's samples from ``block.start`` on, as :meth:`push` of each one's
+        ImuSample would, while each is one the compiled run takes (a plausible, in-order,
+        navigating sample that completes no rest window); return how many were consumed
+        (``block.start`` advanced by that many).  The rest is the caller's to :meth:`push`
+        one by one.  The same pushes, so the same state, counters and recordable input as
+        :meth:`push` of the samples (:mod:`navd.core.imu_block`).
+
+        Stops right after the first consumed sample stamped at or past ``stop_at_us`` (the
+        caller's next output instant), and before a sample off the clock the caller's guard
+        keeps: newest stamp ``clock_t_us`` (-1: none, nothing consumed), a sample more than
+        ``clock_back_us`` behind or ``clock_ahead_us`` ahead of it is not taken
+        (:meth:`navd.core.clock_guard.ClockGuard.on_clock`)."""
+        i0 = block.start
+        if self._stage != _NAV or self.t_us < 0 or i0 >= block.n:
+            return 0
+        lim = self._block_lim
+        lim[LIM_BACK] = clock_back_us
+        lim[LIM_AHEAD] = clock_ahead_us
+        bank = self._bank_buf
+        k = push_run(self._buf, self._rest_acc, self._no_bank if bank is None else bank,
+                     bank is not None, block.t_us, block.dt_us, block.inc, i0, block.n,
+                     self.t_us, clock_t_us, lim, self._coning, stop_at_us)
+        if k:
+            last = i0 + k - 1
+            self.t_us = int(block.t_us[last])
+            self._imu_dt_us = int(block.dt_us[last])
+            self.counters["imu"] += k
+            block.start = i0 + k
+        return k
+
     def _push_imu(self, s: ImuSample) -> bool:
         # The kHz path (issue 18): each field read once, the usual plausibility test inline
         # (the same arithmetic as plausible.imu_reason, which still classifies a failure).

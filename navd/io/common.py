@@ -164,6 +164,14 @@ class RateIntegrator:
         return ImuSample(t_us, dt_us, gx * dt_s, gy * dt_s, gz * dt_s, ax * dt_s, ay * dt_s,
                          az * dt_s)
 
+    def continue_line(self, key: Hashable, t_us: int) -> None:
+        """What :meth:`advance` leaves behind for a run of samples that each continued
+        ``key``'s time line, the newest stamped ``t_us`` (the batch lane, whose compiled
+        decoder checked the intervals: navd.core.highres_batch)."""
+        self._last_t_us[key] = t_us
+        if self._new_line:
+            self._new_line.pop(key, None)
+
     def _restart(self, reason: str, detail: str, *args: object) -> int | None:
         # Counted even when a nominal interval rescues the sample: a restart is worth knowing.
         self._reject.counters.inc(reason)

@@ -32,6 +32,9 @@ from collections.abc import Callable, Hashable
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
+
 from navd.io.common import Rejector
 
 __all__ = ["AGREE_ACCEL_MPS2", "AGREE_GYRO_RPS", "MAX_OTHERS", "ImuAgreement", "SourceLock"]
@@ -127,6 +130,32 @@ class ImuAgreement:
         self._lax += ax
         self._lay += ay
         self._laz += az
+
+    def new_window(self, now_us: int) -> bool:
+        """Whether :meth:`add_locked` at ``now_us`` would start a new window first."""
+        start = self._start_us
+        return start < 0 or now_us < start or now_us - start >= _WINDOW_US
+
+    def locked_sums_into(self, sums: npt.NDArray[np.float64], fresh: bool) -> None:
+        """The locked stream's window sums (rate xyz, specific force xyz) into ``sums``
+        (6,), zeros when ``fresh`` (a new window will start): what a run of
+        :meth:`add_locked` at one receive time adds to (the batch lane)."""
+        if fresh:
+            sums[:] = 0.0
+        else:
+            sums[0], sums[1], sums[2] = self._lgx, self._lgy, self._lgz
+            sums[3], sums[4], sums[5] = self._lax, self._lay, self._laz
+
+    def add_locked_run(self, now_us: int, fresh: bool, n: int,
+                       sums: npt.NDArray[np.float64]) -> None:
+        """:meth:`add_locked` of ``n`` samples received at ``now_us``, whose components were
+        added in order to the sums :meth:`locked_sums_into` gave (``fresh``: from zero, the
+        new window :meth:`new_window` announced is started here, judging the old one)."""
+        if fresh:
+            self._window(now_us)
+        self._ln += n
+        self._lgx, self._lgy, self._lgz = float(sums[0]), float(sums[1]), float(sums[2])
+        self._lax, self._lay, self._laz = float(sums[3]), float(sums[4]), float(sums[5])
 
     def locked_mean(self) -> _Mean:
         """The locked stream's sums over the present window."""

@@ -37,8 +37,12 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from navd.core import highres_batch as hb
+from navd.core.imu_block import ImuBlock
 from navd.core.plausible import gnss_reason, imu_reason
 from navd.diag import Counters, RateLimitedLog
 from navd.io import pol_wire
@@ -284,6 +288,17 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         self._max_datagram = cfg.max_datagram_bytes
         self._want_imu_id = cfg.imu_id
         self._updated_mask = _HIGHRES_ACC_GYRO if cfg.require_fields_updated else 0
+        # the batch lane (feed_lane): the fast path's datagrams of one IMU instance, a
+        # read's worth at a time in compiled code; its settings and scratch arrays
+        self.lane = self._highres_fast and cfg.imu_id is not None
+        self._lane = np.zeros(hb.LANE_STATE, np.int64)
+        self._lane[hb.L_ID] = -1 if cfg.imu_id is None else cfg.imu_id
+        self._lane[hb.L_MASK] = self._updated_mask
+        self._lane[hb.L_EXTRA] = table[_HIGHRES_ID]
+        self._lane[hb.L_MAX_GAP] = round(cfg.max_imu_gap_s * 1e6)
+        self._lane_lim = np.array([self._max_gyro, self._max_accel])
+        self._lane_scratch = np.zeros(64, np.uint8)
+        self._lane_sums = np.zeros(6)
 
     def reset(self) -> None:
         """Forget partial frames, IMU time lines and sequence numbers (e.g. after a link
@@ -392,6 +407,69 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
             lock.imu_agreement.add_locked(recv_t_us, gx, gy, gz, ax, ay, az)
         c["imu_ok"] = c.get("imu_ok", 0) + 1
         return sample
+
+    def feed_lane(self, buf: npt.NDArray[np.uint8], offs: npt.NDArray[np.int64], i: int,
+                  n: int, recv_t_us: int, block: ImuBlock) -> int:
+        """:meth:`feed_datagram` of datagrams ``i``, ``i + 1``, ... ``n - 1`` of one read
+        (datagram j is ``buf[offs[j]:offs[j + 1]]``) while each is a datagram of the
+        per-sample path (:meth:`_highres_imu_datagram`) from the source of datagram ``i``
+        (accepted, allowed, locked), with sequence numbers continuing: their samples are
+        appended to ``block`` (as long as it has room), in compiled code
+        (:func:`navd.core.highres_batch.decode_run`), and counted as that path counts them.
+        Returns how many were taken; 0 for a decoder without the lane (:attr:`lane`: the
+        per-sample path for one configured IMU instance).  The caller feeds a datagram not
+        taken through :meth:`feed_datagram` and calls again for the rest."""
+        if not self.lane:
+            return 0
+        p = int(offs[i])
+        if offs[i + 1] - p < 12:
+            return 0
+        src = (int(buf[p + 5]), int(buf[p + 6]))
+        source = self._sources.get(src)
+        allow = self._allow
+        if source is None or source.last_seq is None or (allow is not None
+                                                         and src not in allow):
+            return 0
+        lock = self.source_lock
+        if lock is not None and lock.locked("imu") != src:
+            return 0  # admit_locked would refuse it
+        lane = self._lane
+        key = (src[0], src[1], _HIGHRES_ID, int(lane[hb.L_ID]))
+        last_t = self._imu.last_time(key)
+        if last_t is None:
+            return 0
+        lane[hb.L_SYS], lane[hb.L_COMP] = src
+        lane[hb.L_SEQ] = source.last_seq
+        lane[hb.L_LAST_T] = last_t
+        sums = self._lane_sums
+        agree = lock.imu_agreement if lock is not None else None
+        # the locked stream's agreement window goes on, or a new one starts at this receive
+        # time: then the run's sums start from zero (ImuAgreement.add_locked)
+        fresh = agree is not None and agree.new_window(recv_t_us)
+        if agree is not None:
+            agree.locked_sums_into(sums, fresh)
+        o = block.n
+        k = hb.decode_run(buf, offs, i, n, lane, self._lane_lim, self._lane_scratch, sums,
+                          block.t_us, block.dt_us, block.inc, o)
+        if not k:
+            return 0
+        block.n = o + k
+        # what _highres_imu_datagram counts and changes per datagram, for k of them in the
+        # order it does (so new counter keys come in the same order)
+        c = self._counts
+        c["datagrams"] = c.get("datagrams", 0) + k
+        self.last_junk = 0
+        c["frames_ok"] = c.get("frames_ok", 0) + k
+        fk = source.frames_key
+        c[fk] = c.get(fk, 0) + k
+        source.last_seq = int(lane[hb.L_SEQ])
+        self._imu.continue_line(key, int(lane[hb.L_LAST_T]))
+        self._recv_us = recv_t_us
+        if lock is not None and agree is not None:
+            lock.admit_locked("imu", src, recv_t_us)
+            agree.add_locked_run(recv_t_us, fresh, k, sums)
+        c["imu_ok"] = c.get("imu_ok", 0) + k
+        return k
 
     def _one_frame(self, f: Frame, recv_t_us: int) -> list[Sample]:
         """The samples of a datagram that is exactly the valid frame ``f``."""
