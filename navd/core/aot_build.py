@@ -53,6 +53,29 @@ def _exercise() -> None:
                                 0.0, 2.0, 3.0, 0.1))
         if k % 20 == 0:
             est.solution()
+    _exercise_lane(est, k * _DT_US)
+
+
+def _exercise_lane(est: Any, t_us: int) -> None:
+    """The batch lane's kernels (navd.core.highres_batch, navd.core.imu_block) with the
+    argument types the daemon passes (the decoder's and the UDP reader's arrays)."""
+    import numpy as np
+
+    from navd.core import highres_batch as hb
+    from navd.core.imu_block import ImuBlock
+
+    block = ImuBlock()
+    for k in range(4):
+        block.t_us[k] = t_us + (k + 1) * _DT_US
+        block.dt_us[k] = _DT_US
+        block.inc[k] = (0.0, 0.0, 0.0, 0.0, 0.0, -9.8 * _DT_US * 1e-6)
+    block.n = 4
+    est.push_imu_block(block, t_us + 2 * _DT_US, t_us, 1_000_000, 100_000)
+    data = bytearray(b"\xfd\x3f\x00\x00\x00\x01\x01\x69\x00\x00" + bytes(65))
+    offs = np.array([0, len(data)], np.int64)
+    lane = np.zeros(hb.LANE_STATE, np.int64)
+    hb.decode_run(np.frombuffer(data, np.uint8), offs, 0, 1, lane, np.ones(2),
+                  np.zeros(64, np.uint8), np.zeros(6), block.t_us, block.dt_us, block.inc, 0)
 
 
 def core_files() -> dict[str, str]:

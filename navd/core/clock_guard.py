@@ -125,6 +125,21 @@ class ClockGuard:
             self._host_at_t = host_us
         return True
 
+    def lane_clock(self) -> int:
+        """The newest stamp of the current clock when :meth:`on_clock` may pass samples
+        (a clock, no candidate pending); -1 otherwise.  With ``back_tolerance_us`` and
+        ``max_gap_us`` it is what a compiled run over a block of samples checks
+        (``Estimator.push_imu_block``); :meth:`on_clock_run` then does the bookkeeping."""
+        return self.t_us if not self._cands else -1
+
+    def on_clock_run(self, t_newest: int, host_us: int | None) -> None:
+        """:meth:`on_clock` of a run of samples received at ``host_us`` that were each on
+        the clock (checked by the run), in increasing order, the newest stamped
+        ``t_newest``: the same bookkeeping."""
+        if t_newest > self.t_us:
+            self.t_us = t_newest
+            self._host_at_t = host_us
+
     def _gap_is_real(self, ahead: int, host_us: int | None) -> bool:
         if host_us is None or self._host_at_t is None:
             return ahead <= _REPLAY_AHEAD_US

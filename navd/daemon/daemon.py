@@ -41,6 +41,7 @@ from navd.config.daemon import DaemonConfig
 from navd.core._jit import aot_status, describe_status
 from navd.core.aiding.dov import dov_status
 from navd.core.clock_guard import ClockGuard
+from navd.core.imu_block import ImuBlock
 from navd.daemon import bias_store
 from navd.daemon.adapters import zenoh_session_config
 from navd.daemon.service import SdNotifier, watchdog_interval_s
@@ -238,6 +239,11 @@ class Daemon:
         self._gnss_seen_t_us = -1
         self._pos_fused_t_us = -1
         self._gnss_counts = (0, 0)
+        # the estimator task's state (_estimate): the restart count it last saw, whether it
+        # has seen the estimator navigate, and when a sink may next be due (_outputs)
+        self._restarts_seen = 0
+        self._navigating = False
+        self._quiet_until, self._quiet_epoch = -1, 0
 
     # -- life cycle ---------------------------------------------------------------------------
 
@@ -496,14 +502,15 @@ class Daemon:
     # -- the estimator task -------------------------------------------------------------------
 
     async def _estimate(self) -> None:
-        est, sinks, get, ready = self.est, self.sinks, self.queue.get, self.queue.ready
+        get, ready = self.queue.get, self.queue.ready
         guard, on_clock = self.clock_guard.push, self.clock_guard.on_clock
+        push, block = self._push, self._push_block
         n = 0
-        restarts = est.restarts
-        navigating = False
-        # every sink's schedule has its next instant at or after quiet_until (sensor us) in
-        # estimator epoch quiet_epoch; -1: ask them
-        quiet_until, quiet_epoch = -1, est.restarts
+        self._restarts_seen = self.est.restarts
+        self._navigating = False
+        # every sink's schedule has its next instant at or after _quiet_until (sensor us)
+        # in estimator epoch _quiet_epoch; -1: ask them
+        self._quiet_until, self._quiet_epoch = -1, self.est.restarts
         while True:
             # what is queued is taken without a get() coroutine per sample (issue 18)
             item = ready.popleft() if ready else await get()
@@ -514,36 +521,77 @@ class Daemon:
             # the clock guard holds samples off the current sensor clock until a new clock
             # is confirmed; usually it hands back just this sample (on_clock: that case
             # without a list per sample)
-            for s in ((sample,) if type(sample) is ImuSample and on_clock(sample.t_us, host_us)
-                      else guard(sample, host_us)):
-                if self.recorder is not None:
-                    self._record(s)
-                t_before = est.t_us
-                if output_instant(est, s):  # the one output rule (navd.pipeline)
-                    if not navigating:
-                        navigating = True
-                        self._nav_since = time.monotonic()
-                    # before quiet_until in its epoch no sink is due: each due() would say
-                    # False and change nothing (issue 18: not asked per sample)
-                    if est.t_us >= quiet_until or est.restarts != quiet_epoch:
-                        sol: NavSolution | None = None
-                        for sink in sinks:
-                            # the restart count starts a sink's schedule over with the
-                            # estimator
-                            if sink.schedule.due(est.t_us, est.restarts):
-                                if sol is None:
-                                    sol = est.solution()
-                                self._publish(sink, sol, recv_ns)
-                        quiet_epoch = est.restarts
-                        quiet_until = min((sink.schedule.next_us for sink in sinks),
-                                          default=-1)
-                if est.restarts != restarts:
-                    restarts = est.restarts
-                    navigating = est.initialized
-                    self._restarted(t_before, s.t_us)
+            if isinstance(sample, ImuBlock):
+                block(sample, recv_ns, host_us)
+            elif type(sample) is ImuSample and on_clock(sample.t_us, host_us):
+                push(sample, recv_ns)
+            else:
+                for s in guard(sample, host_us):
+                    push(s, recv_ns)
             n += 1
             if n % 64 == 0:
                 await asyncio.sleep(0)  # a long backlog must not starve the sockets
+
+    def _push(self, s: Sample, recv_ns: int) -> None:
+        """One sample the clock guard passed: recorded, pushed, outputs when due."""
+        est = self.est
+        if self.recorder is not None:
+            self._record(s)
+        t_before = est.t_us
+        # the one output rule (navd.pipeline); _outputs' usual "nothing due" without a call
+        if output_instant(est, s) and (est.t_us >= self._quiet_until or not self._navigating
+                                       or est.restarts != self._quiet_epoch):
+            self._outputs(recv_ns)
+        if est.restarts != self._restarts_seen:
+            self._restarts_seen = est.restarts
+            self._navigating = est.initialized
+            self._restarted(t_before, s.t_us)
+
+    def _push_block(self, block: ImuBlock, recv_ns: int, host_us: int | None) -> None:
+        """A block of IMU samples (the UDP batch lane), as :meth:`_push` of each sample the
+        clock guard passes, in order: runs of usual samples in one compiled call
+        (``Estimator.push_imu_block``, which stops at each output instant, so the outputs
+        come at the same samples), the others one by one; all one by one while recording
+        (a recording holds the pushes one by one).  The block goes back to its pool."""
+        est, g = self.est, self.clock_guard
+        try:
+            while block.start < block.n:
+                if self.recorder is None:
+                    stop = self._quiet_until if est.restarts == self._quiet_epoch else -1
+                    if est.push_imu_block(block, stop, g.lane_clock(), g.back_tolerance_us,
+                                          g.max_gap_us):
+                        g.on_clock_run(int(block.t_us[block.start - 1]), host_us)
+                        self._outputs(recv_ns)  # output_instant's True: an IMU sample
+                        continue
+                s = block.sample(block.start)
+                block.start += 1
+                if g.on_clock(s.t_us, host_us):
+                    self._push(s, recv_ns)
+                else:
+                    for x in g.push(s, host_us):
+                        self._push(x, recv_ns)
+        finally:
+            block.release()
+
+    def _outputs(self, recv_ns: int) -> None:
+        """An IMU sample of a navigating estimator was pushed: publish to the sinks due."""
+        est = self.est
+        if not self._navigating:
+            self._navigating = True
+            self._nav_since = time.monotonic()
+        # before _quiet_until in its epoch no sink is due: each due() would say False and
+        # change nothing (issue 18: not asked per sample)
+        if est.t_us >= self._quiet_until or est.restarts != self._quiet_epoch:
+            sol: NavSolution | None = None
+            sinks = self.sinks
+            for sink in sinks:
+                # the restart count starts a sink's schedule over with the estimator
+                if sink.schedule.due(est.t_us, est.restarts):
+                    if sol is None:
+                        sol = est.solution()
+                    self._publish(sink, sol, recv_ns)
+            self._quiet_epoch = est.restarts
+            self._quiet_until = min((sink.schedule.next_us for sink in sinks), default=-1)
 
     def _restarted(self, t_before_us: int, t_new_us: int) -> None:
         """The estimator started over: say so at once (the periodic line may be a minute away)

@@ -25,9 +25,11 @@ import asyncio
 import collections
 import logging
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, TypeVar
 
 from navd.config.daemon import DaemonConfig
+from navd.core.imu_block import ImuBlock
 from navd.core.plausible import Limits
 from navd.daemon.adapters import dronecan_bus_config, mavlink_input_config
 from navd.diag import RateLimitedLog
@@ -52,7 +54,8 @@ __all__ = [
 
 _log = logging.getLogger("navd.daemon.sources")
 
-QueueItem = tuple[int, Sample] | None  # (recv_t_ns, sample); None ends the stream
+# (recv_t_ns, sample or a block of IMU samples); None ends the stream
+QueueItem = tuple[int, Sample | ImuBlock] | None
 
 
 class ReceiveClock:
@@ -74,7 +77,9 @@ class ReceiveClock:
 
 class SampleQueue:
     """Bounded FIFO of (recv_t_ns, sample) from the links' callbacks to the estimator task,
-    dropping the oldest when full.
+    dropping the oldest when full.  An item may be an :class:`ImuBlock` (the UDP batch
+    lane: a read's IMU samples as one item, from a pool of a few blocks, so the queue's
+    memory stays bounded); a dropped block goes back to its pool, its samples counted.
 
     A deque and the waiting consumer's future rather than asyncio.Queue: at 1 kHz nearly
     every sample finds the consumer waiting, and asyncio.Queue's bookkeeping around that
@@ -94,15 +99,19 @@ class SampleQueue:
         self.high_water = 0
         self.closed = False
 
-    def put(self, recv_ns: int, sample: Sample) -> None:
+    def put(self, recv_ns: int, sample: Sample | ImuBlock) -> None:
         if not self.closed:
             self._put((recv_ns, sample))
 
     def _put(self, item: QueueItem) -> None:
         q = self._q
         if len(q) >= self.maxsize:
-            q.popleft()
-            self.drops += 1
+            old = q.popleft()
+            if old is not None and type(old[1]) is ImuBlock:
+                self.drops += len(old[1])
+                old[1].release()
+            else:
+                self.drops += 1
             self._log.warn("queue_drops", "queue full (%d samples): dropped the oldest; "
                            "%d dropped so far", self.maxsize, self.drops)
         q.append(item)
@@ -150,6 +159,19 @@ def _queueing(queue: SampleQueue) -> tuple[ReceiveClock, SampleCallback]:
         queue.put(clock.last_ns, s)
 
     return clock, on_sample
+
+
+def _block_queueing(queue: SampleQueue, clock: ReceiveClock) -> Callable[[ImuBlock], None]:
+    """A UDP link's block callback (the batch lane): the block queued as one item with the
+    receive time of the read it came from."""
+
+    def on_block(b: ImuBlock) -> None:
+        if queue.closed:
+            b.release()
+        else:
+            queue.put(clock.last_ns, b)
+
+    return on_block
 
 
 class Input(Protocol):
@@ -220,6 +242,7 @@ class MavlinkInput(_DecodingInput[MavlinkDecoder, MavlinkLink]):
             m, Limits.from_config(self.cfg.estimator.imu),
             warn_interval_s=self.cfg.daemon.warn_interval))
         self.link = await MavlinkLink.open(m.listen, self.decoder, on_sample, clock_us=clock)
+        self.link.deliver_blocks(_block_queueing(queue, clock))
         rx = self.cfg.daemon.rx_buffer
         if rx:
             # The default (~200 kB, ~270 small datagrams) overflows during a short

@@ -24,6 +24,9 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import numpy as np
+import numpy.typing as npt
+
 __all__ = ["ReadPacer"]
 
 # host time over which the sensor-time rate is measured
@@ -90,6 +93,17 @@ class ReadPacer:
             self._rate = 1.0 if abs(rate - 1.0) < _LIVE_RATE_TOLERANCE else rate
             self._t0, self._h0 = t_us, host_us
             self._lag_prev, self._lag = self._lag, math.inf
+
+    def note_run(self, t_us: npt.NDArray[np.int64], i: int, n: int, host_us: int) -> None:
+        """:meth:`note` of ``t_us[i:i + n]`` (n >= 1), strictly increasing stamps read at one
+        host time (a run of the batch lane), with three calls: after the first two, every
+        further stamp of such a run only moves ``t_last`` and the least lag, which the last
+        one sets."""
+        self.note(int(t_us[i]), host_us)
+        if n > 1:
+            self.note(int(t_us[i + 1]), host_us)
+            if n > 2:
+                self.note(int(t_us[i + n - 1]), host_us)
 
     def hold_us(self, host_us: int) -> int:
         """How long (host us) the socket may stay unread from ``host_us``: 0 to read on."""

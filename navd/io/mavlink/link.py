@@ -22,9 +22,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar, cast
 
+import numpy as np
 import serial
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from navd.core.imu_block import ImuBlock
 from navd.diag import Counters, RateLimitedLog
 from navd.io.adapter import SampleDelivery
 from navd.io.common import SampleCallback, monotonic_us
@@ -40,6 +42,7 @@ __all__ = [
     "MavlinkStreamProtocol",
     "MavlinkUdpProtocol",
     "PacedUdpTransport",
+    "RxBatch",
     "open_mavlink",
     "parse_mavlink_url",
 ]
@@ -66,6 +69,12 @@ _MAX_BATCH = 32
 _BURST = 24
 # read buffer: the largest UDP payload, so an oversize datagram is seen (and refused) whole
 _RX_BYTES = 65536
+# a read's datagrams lie back to back in one buffer (RxBatch): room for a batch of small
+# ones besides the largest; a read reaching past it is handed on in parts
+_BATCH_BYTES = _RX_BYTES + _MAX_BATCH * 512
+# ImuBlocks of the batch lane per UDP link: queued but not yet consumed by the estimator
+# task, at most this many (beyond, the per-datagram path queues ImuSamples)
+_BLOCK_POOL = 8
 
 _K = TypeVar("_K")
 
@@ -138,6 +147,42 @@ class _Delivering(SampleDelivery[MavlinkDecoder]):
     """What both MAVLink protocols share."""
 
 
+class RxBatch:
+    """The datagrams of one read, back to back in one preallocated buffer (reused by the
+    next read: nothing may keep a view of it).
+
+    ``data``: the bytes (``u8``: the same memory as a uint8 array, for compiled code);
+    datagram i is ``data[offs[i]:offs[i + 1]]`` (``offs``: int64 (_MAX_BATCH + 1,),
+    ``offs[0] == 0``), received from ``addrs[i]``; ``n`` datagrams.
+    """
+
+    __slots__ = ("addrs", "data", "n", "offs", "u8", "view")
+
+    def __init__(self, size: int = _BATCH_BYTES) -> None:
+        self.data = bytearray(size)
+        self.view = memoryview(self.data)
+        self.u8 = np.frombuffer(self.data, np.uint8)
+        self.offs = np.zeros(_MAX_BATCH + 1, np.int64)
+        self.addrs: list[tuple[Any, ...]] = []
+        self.n = 0
+
+    def fill(self, datagrams: list[tuple[bytes, tuple[Any, ...]]]) -> RxBatch:
+        """Put (datagram, address) pairs in, as a read of them would (tests, benchmarks)."""
+        off = 0
+        self.addrs.clear()
+        for k, (d, addr) in enumerate(datagrams):
+            self.data[off:off + len(d)] = d
+            off += len(d)
+            self.offs[k + 1] = off
+            self.addrs.append(addr)
+        self.n = len(datagrams)
+        return self
+
+    def datagram(self, i: int) -> bytes:
+        """Datagram ``i`` as bytes (a copy)."""
+        return bytes(self.view[self.offs[i]:self.offs[i + 1]])
+
+
 class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
     """Decodes each datagram and hands samples to ``on_sample`` on the event loop."""
 
@@ -156,6 +201,10 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
         # per address: receive time (us) of its last datagram that gave samples
         self._useful: dict[tuple[Any, ...], int] = {}
         self.pacer: ReadPacer | None = None  # told the IMU stamps read (read pacing)
+        # the batch lane (batch_received): where its blocks go (None: no lane), and the
+        # free blocks of its pool
+        self.on_block: Callable[[ImuBlock], None] | None = None
+        self._free_blocks = ImuBlock.pool(_BLOCK_POOL)
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         # The selector loop's datagram transport does not subclass asyncio.DatagramTransport
@@ -163,11 +212,76 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
         self.transport = cast(asyncio.DatagramTransport, transport)
 
     def datagram_received(self, data: bytes, addr: tuple[Any, ...]) -> None:
+        self._datagram(data, addr, self.clock_us())
+
+    def batch_received(self, batch: RxBatch) -> None:
+        """The datagrams of one read (``batch``, at least one), as :meth:`datagram_received`
+        of each in turn, all read at one receive time (one clock reading per read).
+
+        The batch lane: when nothing is muted and every datagram came from the one address
+        that delivered samples within USEFUL_US, the decoder takes the HIGHRES_IMU
+        datagrams of its usual case in compiled code (``MavlinkDecoder.feed_lane``) into an
+        :class:`ImuBlock` that goes to ``on_block`` as one item; every other datagram goes
+        the per-datagram way, in its place in the order (a block holding the samples
+        before it is handed on first).  The same samples, counters, useful-address table,
+        ``last_peer`` and read pacing notes as datagram by datagram."""
+        n = batch.n
+        now = self.clock_us()
+        addrs = batch.addrs
+        addr = addrs[0]
+        dec = self.decoder
+        useful = self._useful
+        free = self._free_blocks
+        on_block = self.on_block
+        if (dec is None or on_block is None or not dec.lane or not free or self._muted
+                or self._muted_hosts or now < self._muted_all
+                or now - useful.get(addr, now - USEFUL_US) >= USEFUL_US
+                or (n > 1 and addrs.count(addr) != n)):
+            for i in range(n):
+                self._datagram(batch.datagram(i), addrs[i], now)
+            return
+        u8, offs = batch.u8, batch.offs
+        pacer = self.pacer
+        block: ImuBlock | None = None
+        took = False
+        i = 0
+        while i < n:
+            if block is None and free:
+                block = free.pop()
+            if block is not None:
+                o = block.n
+                k = dec.feed_lane(u8, offs, i, n, now, block)
+                if k:
+                    if pacer is not None:
+                        pacer.note_run(block.t_us, o, k, now)
+                    took = True
+                    i += k
+                    if block.n == len(block.t_us):
+                        on_block(block)
+                        block = None
+                    continue
+                if block.n:  # the samples before this datagram go first
+                    on_block(block)
+                    block = None
+            self._datagram(batch.datagram(i), addr, now)
+            i += 1
+        if block is not None:
+            if block.n:
+                on_block(block)
+            else:
+                block.release()
+        self.last_peer = addr
+        if took:  # what _datagram does for a datagram that gave samples
+            if len(useful) >= _MAX_PEERS and addr not in useful:
+                useful.clear()
+            useful[addr] = now
+
+    def _datagram(self, data: bytes, addr: tuple[Any, ...], now: int) -> None:
+        """One datagram received at ``now`` (us) from ``addr``: decoded, samples delivered."""
         self.last_peer = addr
         dec = self.decoder
         if dec is None:
             return
-        now = self.clock_us()
         if (self._muted or self._muted_hosts or now < self._muted_all) and self._is_muted(
                 addr, now):
             # a muted sender: only a datagram that is one valid frame is read (a cost that
@@ -281,8 +395,9 @@ class PacedUdpTransport(asyncio.DatagramTransport):
     """A listening (``udpin``) UDP socket read by navd itself rather than by the event
     loop's datagram transport, so that reading can be paced (:mod:`navd.io.read_pacing`).
 
-    Each readiness callback drains the socket (up to ``_MAX_BATCH`` datagrams, each handed
-    to ``datagram_received`` in arrival order); then, while ``hold_us`` (set by the daemon
+    Each readiness callback drains the socket (up to ``_MAX_BATCH`` datagrams, back to back
+    in one preallocated :class:`RxBatch` handed to the protocol's ``batch_received`` in one
+    call, in arrival order); then, while ``hold_us`` (set by the daemon
     through :meth:`MavlinkLink.pace_reads`) says no output instant is near, the socket is
     taken off the loop and read again when the hold ends: at 1 kHz the loop wakes a few
     times per output period instead of once per datagram.  Without ``hold_us`` every
@@ -296,8 +411,7 @@ class PacedUdpTransport(asyncio.DatagramTransport):
         self._sock = sock
         self._fd = sock.fileno()
         self._protocol = protocol
-        self._buf = bytearray(_RX_BYTES)
-        self._view = memoryview(self._buf)
+        self._batch = RxBatch()
         self._closing = False
         self._timer: asyncio.TimerHandle | None = None
         self.hold_us: Callable[[], int] | None = None
@@ -320,19 +434,36 @@ class PacedUdpTransport(asyncio.DatagramTransport):
 
     def _readable(self) -> None:
         recv = self._sock.recvfrom_into
-        view = self._view
-        deliver = self._protocol.datagram_received
-        n_read = 0
+        batch = self._batch
+        view, offs, addrs = batch.view, batch.offs, batch.addrs
+        deliver = self._protocol.batch_received
+        limit = len(view) - _RX_BYTES  # past it, the next datagram might not fit whole
+        off = k = n_read = 0
+        drained = False
         for n_read in range(_MAX_BATCH):  # noqa: B007 - the count is used below
             try:
-                n, addr = recv(self._buf)
+                nbytes, addr = recv(view[off:])
             except (BlockingIOError, InterruptedError):
+                drained = True
                 break
             except OSError as exc:  # ICMP errors and the like: the socket lives on
                 self._protocol.error_received(exc)
+                drained = True
                 break
-            deliver(bytes(view[:n]), addr)
-        else:
+            off += nbytes
+            k += 1
+            offs[k] = off
+            addrs.append(addr)
+            if off > limit:  # hand on what was read so far, read on into an empty buffer
+                batch.n = k
+                deliver(batch)
+                addrs.clear()
+                off = k = 0
+        if k:
+            batch.n = k
+            deliver(batch)
+            addrs.clear()
+        if not drained:
             return  # more may be waiting: stay on the loop, read on at the next turn
         hold = self.hold_us
         if hold is None or self._closing or n_read > _BURST:
@@ -553,6 +684,17 @@ class MavlinkLink:
         self._udp.pacer = pacer
         clock = self._udp.clock_us
         t.hold_us = lambda: pacer.hold_us(clock())
+        return True
+
+    def deliver_blocks(self, on_block: Callable[[ImuBlock], None]) -> bool:
+        """Let a listening UDP link's reads take the batch lane
+        (:meth:`MavlinkUdpProtocol.batch_received`): its IMU samples then come as
+        :class:`ImuBlock` items to ``on_block`` (which must :meth:`ImuBlock.release` each
+        when done) besides samples to ``on_sample``; False (nothing changes) for other
+        links."""
+        if not isinstance(self._udp_transport, PacedUdpTransport) or self._udp is None:
+            return False
+        self._udp.on_block = on_block
         return True
 
     def set_receive_buffer(self, nbytes: int) -> int:
