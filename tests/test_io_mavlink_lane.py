@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import random
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -21,7 +22,9 @@ import pytest
 from navd.config import EstimatorConfig
 from navd.core.estimator import Estimator
 from navd.core.imu_block import ImuBlock
-from navd.io.mavlink import MavlinkDecoder, MavlinkInputConfig
+from navd.io.mavlink import MavlinkDecoder, MavlinkInputConfig, MavlinkUdpProtocol
+from navd.io.mavlink.link import RxBatch
+from navd.io.read_pacing import ReadPacer
 from navd.types import GnssSample, ImuSample, Sample
 from tests.test_io_mavlink_fastpath import _frame, _stream
 
@@ -210,3 +213,166 @@ def test_block_push_ends_in_the_state_per_sample_push_gives(yaw_bank: bool) -> N
     if one.yaw_bank is not None:
         assert blk.yaw_bank is not None
         assert np.array_equal(one.yaw_bank.buf, blk.yaw_bank.buf)
+
+
+def _protocol(clock: list[int]) -> tuple[MavlinkUdpProtocol, list[Sample]]:
+    """A UDP protocol (decoder with source lock, read pacer) whose samples, blocks
+    expanded, land in the list returned; its clock reads ``clock[0]``."""
+    dec = MavlinkDecoder(MavlinkInputConfig(nominal_imu_rate_hz=1000.0, relock_s=0.5))
+    out: list[Sample] = []
+    proto = MavlinkUdpProtocol(dec, out.append, lambda: clock[0])
+    proto.pacer = ReadPacer([20_000, 100_000])
+
+    def on_block(b: ImuBlock) -> None:
+        out.extend(b.samples())
+        b.release()
+
+    proto.on_block = on_block
+    return proto, out
+
+
+def _pacer_state(p: ReadPacer) -> tuple[object, ...]:
+    return tuple(getattr(p, k) for k in ReadPacer.__slots__)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_batch_received_is_datagram_received_of_each(seed: int) -> None:
+    """Reads of the hostile stream, with junk floods (muting) from another address and
+    from the sender's own, and datagrams of another sender mixed in: ``batch_received``
+    must leave the protocol as ``datagram_received`` of each datagram at the read's time
+    does (samples, counters, useful addresses, mutings, last peer, read pacing)."""
+    rng = random.Random(seed)
+    clock = [0]
+    lane, lane_out = _protocol(clock)
+    one, one_out = _protocol(clock)
+    assert lane.decoder is not None and one.decoder is not None
+    me, other = ("127.0.0.1", 14550), ("10.0.0.9", 5000)
+    batch = RxBatch()
+    blocks_used = 0
+    for now, datagrams in _reads(seed):
+        read = [(d, me) for d in datagrams]
+        r = rng.random() if len(read) < 32 else 1.0  # a read holds at most 32
+        if r < 0.05:  # junk, enough to mute its sender
+            read.insert(rng.randrange(len(read) + 1), (rng.randbytes(5000), other))
+        elif r < 0.08:
+            read.insert(rng.randrange(len(read) + 1), (rng.randbytes(300), me))
+        elif r < 0.1:
+            read.insert(rng.randrange(len(read) + 1), (datagrams[0], other))
+        clock[0] = now
+        if rng.random() < 0.03:  # the pool is empty: the per-datagram path
+            free = lane._free_blocks[:]
+            lane._free_blocks.clear()
+            lane.batch_received(batch.fill(read))
+            lane._free_blocks.extend(free)
+        else:
+            n0 = len(lane_out)
+            lane.batch_received(batch.fill(read))
+            blocks_used += len(lane_out) > n0
+        for d, addr in read:
+            one.datagram_received(d, addr)
+        assert lane_out == one_out
+    assert len(lane._free_blocks) == len(ImuBlock.pool(8))
+    assert blocks_used > 100
+    assert list(lane.counters.snapshot().items()) == list(one.counters.snapshot().items())
+    assert "peer_muted" in lane.counters
+    for attr in ("_useful", "_junk", "_junk_hosts", "_junk_all", "_muted", "_muted_hosts",
+                 "_muted_all", "last_peer"):
+        assert getattr(lane, attr) == getattr(one, attr), attr
+    assert lane.pacer is not None and one.pacer is not None
+    assert _pacer_state(lane.pacer) == _pacer_state(one.pacer)
+    assert lane.decoder.source_lock is not None and one.decoder.source_lock is not None
+    assert lane.decoder.source_lock.status() == one.decoder.source_lock.status()
+
+
+def test_a_queue_dropping_a_block_returns_it_to_its_pool() -> None:
+    import logging
+
+    from navd.daemon.sources import SampleQueue
+    from navd.diag import RateLimitedLog
+
+    q = SampleQueue(16, RateLimitedLog(logging.getLogger("test"), 5.0))
+    free = ImuBlock.pool(2)
+    b = free.pop()
+    b.n = 5
+    q.put(1, b)
+    for k in range(16):
+        q.put(2, ImuSample(k + 1, 1000, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    assert q.drops == 5 and len(free) == 2 and b.n == 0
+
+
+def _daemon_outputs(items: list[tuple[int, Sample | ImuBlock]]
+                    ) -> tuple[bytes, list[object], int]:
+    """The estimator task of a daemon (a 50 Hz capturing sink) fed ``items``: its final
+    state buffer, the solutions it published and how many samples it pushed in blocks."""
+    import asyncio
+
+    from navd.config.daemon import load_daemon_config
+    from navd.daemon.daemon import Daemon
+    from navd.daemon.sinks import CallbackSink
+
+    captured: list[object] = []
+    d = Daemon(load_daemon_config(None, []), handle_signals=False,
+               extra_sinks=[CallbackSink(captured.append, 50.0, "capture")])
+    d.sinks = list(d._extra)
+    block_push = d.est.push_imu_block
+    in_blocks = [0]
+
+    def counted(*args: Any) -> int:
+        k = block_push(*args)
+        in_blocks[0] += k
+        return k
+
+    d.est.push_imu_block = counted  # type: ignore[method-assign]
+
+    async def run() -> None:
+        task = asyncio.get_running_loop().create_task(d._estimate())
+        for recv_ns, s in items:
+            d.queue.put(recv_ns, s)
+            await asyncio.sleep(0)
+        d.queue.close()
+        await task
+
+    asyncio.run(run())
+    return d.est.buf.tobytes(), captured, in_blocks[0]
+
+
+def test_the_estimator_task_outputs_the_same_from_blocks() -> None:
+    """The daemon's estimator task fed a car run's samples one by one, and fed its IMU
+    samples in blocks of 1..32 (some with a stamp off the clock, which the guard holds):
+    the same state and the same published solutions, at the same samples."""
+    from tests.daemon_util import car_run
+
+    run = car_run(30.0)
+    samples = list(run.samples())
+    rng = random.Random(7)
+    free = ImuBlock.pool(4096 // 2)
+    one: list[tuple[int, Sample | ImuBlock]] = []
+    blocks: list[tuple[int, Sample | ImuBlock]] = []
+    i = 0
+    while i < len(samples):
+        s = samples[i]
+        recv_ns = 10**12 + s.t_us * 1000
+        if not isinstance(s, ImuSample):
+            one.append((recv_ns, s))
+            blocks.append((recv_ns, s))
+            i += 1
+            continue
+        b = free.pop()
+        take = rng.randint(1, 32)
+        while i < len(samples) and isinstance(samples[i], ImuSample) and b.n < take:
+            x = samples[i]
+            assert isinstance(x, ImuSample)
+            if rng.random() < 0.002:  # a wild stamp: the clock guard's, not the block run's
+                x = dataclasses.replace(x, t_us=x.t_us + 50_000_000)
+            b.t_us[b.n], b.dt_us[b.n] = x.t_us, x.dt_us
+            b.inc[b.n] = (x.dtheta_x, x.dtheta_y, x.dtheta_z, x.dvel_x, x.dvel_y, x.dvel_z)
+            b.n += 1
+            one.append((recv_ns, x))
+            i += 1
+        blocks.append((recv_ns, b))
+    state_one, out_one, _ = _daemon_outputs(one)
+    state_blk, out_blk, in_blocks = _daemon_outputs(blocks)
+    assert len(out_one) > 1000 and in_blocks > 0.9 * sum(isinstance(s, ImuSample)
+                                                         for _, s in one)
+    assert out_blk == out_one
+    assert state_blk == state_one
