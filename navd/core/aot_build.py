@@ -53,12 +53,14 @@ def _exercise() -> None:
                                 0.0, 2.0, 3.0, 0.1))
         if k % 20 == 0:
             est.solution()
-    _exercise_lane(est, k * _DT_US)
+    exercise_lane(est, k * _DT_US)
 
 
-def _exercise_lane(est: Any, t_us: int) -> None:
+def exercise_lane(est: Any, t_us: int) -> None:
     """The batch lane's kernels (navd.core.highres_batch, navd.core.imu_block) with the
-    argument types the daemon passes (the decoder's and the UDP reader's arrays)."""
+    argument types the daemon passes (the decoder's and the UDP reader's arrays), through
+    ``est`` (navigating, newest IMU stamp ``t_us``; four more samples are pushed).  Also
+    the daemon's warm-up, so that they are loaded (or compiled) before READY."""
     import numpy as np
 
     from navd.core import highres_batch as hb

@@ -39,6 +39,7 @@ from navd.config import ConfigError
 from navd.config.aiding import NavConfig
 from navd.config.daemon import DaemonConfig
 from navd.core._jit import aot_status, describe_status
+from navd.core.aot_build import exercise_lane
 from navd.core.aiding.dov import dov_status
 from navd.core.clock_guard import ClockGuard
 from navd.core.imu_block import ImuBlock
@@ -176,6 +177,7 @@ def warm_up(nav: NavConfig) -> float:
             est.push(GnssSample(tv, lat0 + speed * tv * 1e-6 / r_earth, lon0, 400.0, speed,
                                 0.0, 0.0, 2.0, 3.0, 0.1))
     est.solution()
+    exercise_lane(est, est.t_us)  # the UDP batch lane's kernels
     return time.perf_counter() - t0
 
 
