@@ -39,8 +39,8 @@ from navd.config import ConfigError
 from navd.config.aiding import NavConfig
 from navd.config.daemon import DaemonConfig
 from navd.core._jit import aot_status, describe_status
-from navd.core.aot_build import exercise_lane
 from navd.core.aiding.dov import dov_status
+from navd.core.aot_build import exercise_lane
 from navd.core.clock_guard import ClockGuard
 from navd.core.imu_block import ImuBlock
 from navd.daemon import bias_store
