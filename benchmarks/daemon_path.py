@@ -5,14 +5,14 @@
 
 The real :class:`navd.daemon.daemon.Daemon` with its sinks open (MAVLink ``udpout`` to a
 local socket nobody reads, Zenoh), fed the datagrams of ``benchmarks/daemon.py`` (car480 with
-a 1 kHz HIGHRES_IMU, 10 Hz GPS_INPUT), 10 per event-loop turn as the paced reader delivers
-them: ``--mode batch`` (default) sent to the daemon's ``udpin`` socket and read by its
-:class:`navd.io.mavlink.link.PacedUdpTransport` (its readiness callback called once per
-10: one read, handed to the protocol's ``batch_received``, the batch lane of issue 18), at
-the receive time of the last; ``--mode datagram`` each into ``datagram_received``
-at its own receive time (the per-datagram path).  The receive clock is the sensor time (a
-live stream for the clock guard), so every run is the same computation, and both modes
-give the same outputs.
+a 1 kHz HIGHRES_IMU, 10 Hz GPS_INPUT), ``--per-read`` (10) per event-loop turn as the paced
+reader delivers them: ``--mode batch`` (default) sent to the daemon's ``udpin`` socket and
+read by its :class:`navd.io.mavlink.link.PacedUdpTransport` (its readiness callback called
+once per read, which hands the datagrams to the protocol's ``batch_received`` in one call:
+the batch lane of issue 18), at the receive time of the last; ``--mode datagram`` each into
+``datagram_received`` at its own receive time (the per-datagram path).  The receive clock is
+the sensor time (a live stream for the clock guard), so every run is the same computation,
+and both modes give the same outputs.
 
 Prints, after 4 s of warm-up:
   instructions  Python bytecode instructions and calls per datagram (``sys.settrace`` with
@@ -20,7 +20,7 @@ Prints, after 4 s of warm-up:
                 most: a load-independent measure of the interpreter's share, which on a
                 shared or slow machine is most of the daemon's CPU (issue 18)
   CPU           process time per datagram over the rest, without tracing (``--pace-ms``:
-                sleep that long after every 10 datagrams, so caches go cold as in the
+                sleep that long after every read, so caches go cold as in the
                 daemon; 0 = back to back)
   hashes        of the estimator's state buffer, the MAVLink bytes sent and the Zenoh
                 attitude JSON: equal between two trees means the same outputs
@@ -116,15 +116,16 @@ async def run(a: argparse.Namespace) -> None:
     addr = ("127.0.0.1", 14550)
 
     async def feed(part: list[tuple[int, bytes]], pause_s: float = 0.0) -> None:
-        for i in range(0, len(part), 10):
+        r = a.per_read
+        for i in range(0, len(part), r):
             if a.mode == "batch":
-                read = part[i:i + 10]
+                read = part[i:i + r]
                 for _, datagram in read:
                     send(datagram, dest)
                 _Clock.now = 10**12 + read[-1][0] * 1000
                 readable()
             else:
-                for t_us, datagram in part[i:i + 10]:
+                for t_us, datagram in part[i:i + r]:
                     _Clock.now = 10**12 + t_us * 1000
                     receive(datagram, addr)
             await asyncio.sleep(pause_s)
@@ -171,7 +172,7 @@ async def run(a: argparse.Namespace) -> None:
           f"{counts['call'] / n:.2f} Python calls (over {n} datagrams)")
     for key, v in sorted(by_fn.items(), key=lambda kv: -kv[1])[:a.top]:
         print(f"  {v / n:8.1f}  {key}")
-    pace = f", {a.pace_ms:g} ms pause per 10" if a.pace_ms else ", back to back"
+    pace = f", {a.pace_ms:g} ms pause per read" if a.pace_ms else ", back to back"
     print(f"CPU {1e6 * cpu / len(rest):.1f} us per datagram over {len(rest)}{pace}")
     print(f"estimator state {hashlib.sha1(d.est.buf.tobytes()).hexdigest()[:16]}, "
           f"counters {dict(d.est.counters)}")
@@ -187,8 +188,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mode", choices=("batch", "datagram"), default="batch",
                     help="reads into batch_received (the batch lane) or datagrams into "
                          "datagram_received")
+    ap.add_argument("--per-read", type=int, default=10, dest="per_read",
+                    help="datagrams per read (per event-loop turn), at most 32")
     ap.add_argument("--pace-ms", type=float, default=0.0, dest="pace_ms",
-                    help="pause after every 10 datagrams of the timed part")
+                    help="pause after every read of the timed part")
     asyncio.run(run(ap.parse_args(argv)))
     return 0
 

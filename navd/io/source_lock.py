@@ -131,26 +131,24 @@ class ImuAgreement:
         self._lay += ay
         self._laz += az
 
-    def new_window(self, now_us: int) -> bool:
-        """Whether :meth:`add_locked` at ``now_us`` would start a new window first."""
+    def lane_sums(self, now_us: int, sums: npt.NDArray[np.float64]) -> bool:
+        """What a run of :meth:`add_locked` at receive time ``now_us`` adds to: the locked
+        stream's window sums (rate xyz, specific force xyz) into ``sums`` (6,), or zeros
+        when the run starts a new window (returned True: pass it on to
+        :meth:`add_locked_run`).  The batch lane."""
         start = self._start_us
-        return start < 0 or now_us < start or now_us - start >= _WINDOW_US
-
-    def locked_sums_into(self, sums: npt.NDArray[np.float64], fresh: bool) -> None:
-        """The locked stream's window sums (rate xyz, specific force xyz) into ``sums``
-        (6,), zeros when ``fresh`` (a new window will start): what a run of
-        :meth:`add_locked` at one receive time adds to (the batch lane)."""
-        if fresh:
+        if start < 0 or now_us < start or now_us - start >= _WINDOW_US:
             sums[:] = 0.0
-        else:
-            sums[0], sums[1], sums[2] = self._lgx, self._lgy, self._lgz
-            sums[3], sums[4], sums[5] = self._lax, self._lay, self._laz
+            return True
+        sums[0], sums[1], sums[2] = self._lgx, self._lgy, self._lgz
+        sums[3], sums[4], sums[5] = self._lax, self._lay, self._laz
+        return False
 
     def add_locked_run(self, now_us: int, fresh: bool, n: int,
                        sums: npt.NDArray[np.float64]) -> None:
         """:meth:`add_locked` of ``n`` samples received at ``now_us``, whose components were
-        added in order to the sums :meth:`locked_sums_into` gave (``fresh``: from zero, the
-        new window :meth:`new_window` announced is started here, judging the old one)."""
+        added in order to the sums :meth:`lane_sums` gave (``fresh``, its answer: from zero,
+        and the new window starts here, judging the old one)."""
         if fresh:
             self._window(now_us)
         self._ln += n

@@ -96,6 +96,7 @@ DEFAULT_MAX_DATAGRAM_BYTES = 16384
 MAX_TRACKED_SOURCES = 8
 
 _POL_MSG_ID = pol_wire.MSG_ID
+_L_SEQ, _L_LAST_T = hb.L_SEQ, hb.L_LAST_T
 _HIGHRES_ID = mavlink.MAVLINK_MSG_ID_HIGHRES_IMU
 _HIGHRES_SIZE = LAYOUTS[_HIGHRES_ID].unpacker.size
 # the HIGHRES_IMU fields the per-sample path reads: time_usec, acc, gyro, (mag, pressures,
@@ -299,6 +300,9 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         self._lane_lim = np.array([self._max_gyro, self._max_accel])
         self._lane_scratch = np.zeros(64, np.uint8)
         self._lane_sums = np.zeros(6)
+        self._lane_src: tuple[int, int] | None = None  # the lane's source (_lane_select)
+        self._lane_source: _Source | None = None
+        self._lane_key: tuple[int, int, int, int] = (0, 0, 0, 0)
 
     def reset(self) -> None:
         """Forget partial frames, IMU time lines and sequence numbers (e.g. after a link
@@ -425,29 +429,26 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         if offs[i + 1] - p < 12:
             return 0
         src = (int(buf[p + 5]), int(buf[p + 6]))
-        source = self._sources.get(src)
-        allow = self._allow
-        if source is None or source.last_seq is None or (allow is not None
-                                                         and src not in allow):
+        if src != self._lane_src and not self._lane_select(src):
             return 0
+        source = self._lane_source
+        assert source is not None
+        seq = source.last_seq
         lock = self.source_lock
-        if lock is not None and lock.locked("imu") != src:
-            return 0  # admit_locked would refuse it
-        lane = self._lane
-        key = (src[0], src[1], _HIGHRES_ID, int(lane[hb.L_ID]))
+        if seq is None or (lock is not None and lock.locked("imu") != src):
+            return 0  # _track would count the sequence afresh; admit_locked would refuse
+        key = self._lane_key
         last_t = self._imu.last_time(key)
         if last_t is None:
             return 0
-        lane[hb.L_SYS], lane[hb.L_COMP] = src
-        lane[hb.L_SEQ] = source.last_seq
-        lane[hb.L_LAST_T] = last_t
+        lane = self._lane
+        lane[_L_SEQ] = seq
+        lane[_L_LAST_T] = last_t
         sums = self._lane_sums
-        agree = lock.imu_agreement if lock is not None else None
         # the locked stream's agreement window goes on, or a new one starts at this receive
         # time: then the run's sums start from zero (ImuAgreement.add_locked)
-        fresh = agree is not None and agree.new_window(recv_t_us)
-        if agree is not None:
-            agree.locked_sums_into(sums, fresh)
+        agree = lock.imu_agreement if lock is not None else None
+        fresh = agree.lane_sums(recv_t_us, sums) if agree is not None else False
         o = block.n
         k = hb.decode_run(buf, offs, i, n, lane, self._lane_lim, self._lane_scratch, sums,
                           block.t_us, block.dt_us, block.inc, o)
@@ -462,14 +463,26 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         c["frames_ok"] = c.get("frames_ok", 0) + k
         fk = source.frames_key
         c[fk] = c.get(fk, 0) + k
-        source.last_seq = int(lane[hb.L_SEQ])
-        self._imu.continue_line(key, int(lane[hb.L_LAST_T]))
+        source.last_seq = int(lane[_L_SEQ])
+        self._imu.continue_line(key, int(lane[_L_LAST_T]))
         self._recv_us = recv_t_us
         if lock is not None and agree is not None:
             lock.admit_locked("imu", src, recv_t_us)
             agree.add_locked_run(recv_t_us, fresh, k, sums)
         c["imu_ok"] = c.get("imu_ok", 0) + k
         return k
+
+    def _lane_select(self, src: tuple[int, int]) -> bool:
+        """Make ``src`` the lane's source if it is accepted and allowed (kept until another
+        source's datagram comes: accepted sources stay accepted, ``allow`` is fixed)."""
+        source = self._sources.get(src)
+        if source is None or (self._allow is not None and src not in self._allow):
+            return False
+        self._lane_src = src
+        self._lane_source = source
+        self._lane_key = (src[0], src[1], _HIGHRES_ID, int(self._lane[hb.L_ID]))
+        self._lane[hb.L_SYS], self._lane[hb.L_COMP] = src
+        return True
 
     def _one_frame(self, f: Frame, recv_t_us: int) -> list[Sample]:
         """The samples of a datagram that is exactly the valid frame ``f``."""

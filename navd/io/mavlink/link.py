@@ -236,7 +236,7 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
         if (dec is None or on_block is None or not dec.lane or not free or self._muted
                 or self._muted_hosts or now < self._muted_all
                 or now - useful.get(addr, now - USEFUL_US) >= USEFUL_US
-                or (n > 1 and addrs.count(addr) != n)):
+                or addrs.count(addr) != n):
             for i in range(n):
                 self._datagram(batch.datagram(i), addrs[i], now)
             return
