@@ -27,7 +27,7 @@ import numpy.typing as npt
 
 from navd.core import state as st
 from navd.core._jit import jit
-from navd.core.aiding.gyro_rest import rest_push
+from navd.core.aiding.gyro_rest import rest_completes, rest_push
 from navd.core.aiding.yaw_bank_kernels import bank_imu
 from navd.types import ImuSample
 
@@ -149,7 +149,7 @@ def push_run(buf: Arr, rest_acc: Arr, bank: Arr, has_bank: bool, t_arr: IArr, dt
         if t_us <= last_t or t_us - last_t - dt_us > max_gap:
             break
         # rest_push would complete the window: _push_imu closes it in Python first
-        if rest_acc[13] + dt >= window_s:
+        if rest_completes(rest_acc, dt, window_s):
             break
         if d > 0:
             guard_t = t_us

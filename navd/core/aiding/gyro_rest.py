@@ -99,6 +99,7 @@ _VAR_FLOOR_ACCEL = 1e-10
 # accumulator layout (one window): sum rate (3), sum specific force (3), sums of squares of
 # both (6), sample count, time (s)
 _ACC_W = 14
+_ACC_T = 13
 _BG = 9  # error-state index of the gyro bias
 
 
@@ -122,8 +123,15 @@ def rest_push(a: Arr, dtx: float, dty: float, dtz: float, dvx: float, dvy: float
     a[10] += fy * fy
     a[11] += fz * fz
     a[12] += 1.0
-    a[13] += dt
-    return bool(a[13] >= window_s)
+    a[_ACC_T] += dt
+    return bool(a[_ACC_T] >= window_s)
+
+
+@jit
+def rest_completes(a: Arr, dt: float, window_s: float) -> bool:
+    """Whether :func:`rest_push` of a sample of ``dt`` s would complete the window (the same
+    sum and test: decided before pushing, by a caller that must close it first)."""
+    return bool(a[_ACC_T] + dt >= window_s)
 
 
 @jit
