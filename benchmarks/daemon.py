@@ -252,6 +252,7 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, Any] = {"machine": platform.platform(), "cpus": os.cpu_count(),
                                "python": platform.python_version(),
                                "load_avg_before": os.getloadavg()[0]}
+    status: StatusSubscriber | None = None
     try:
         navd.wait_ready()
         status = StatusSubscriber(port_z, vehicle)
@@ -332,8 +333,9 @@ def main(argv: list[str] | None = None) -> int:
         held = [s["imu_rate_hz"] for s in steps if s["held"]]
         results["max_rate_held_hz"] = max([1000.0, *held]) if main["lost"] == 0 else None
         sock.close()
-        status.session.close()
     finally:
+        if status is not None:  # an open Zenoh session would keep this process alive
+            status.session.close()
         rx.running = False
         navd.stop()
 
@@ -403,11 +405,13 @@ def py_spy_summary(path: str, n: int = 15) -> dict[str, Any]:
         frames = stack.split(";")
         leaf = frames[-1].split(" (")[0] + " (" + frames[-1].rsplit("/", 1)[-1]
         own[leaf] = own.get(leaf, 0) + k
-        for name in {f.split(" (")[0] for f in frames}:
+        # py-spy names methods Class.method: the share is keyed by the method name
+        for name in {f.split(" (")[0].rsplit(".", 1)[-1] for f in frames}:
             incl[name] = incl.get(name, 0) + k
     paths = {name: round(100.0 * incl.get(name, 0) / max(total, 1), 1)
-             for name in ("datagram_received", "feed_datagram", "_estimate", "push",
-                          "send_solution", "_publish", "put")}
+             for name in ("_readable", "batch_received", "datagram_received", "_estimate",
+                          "_push_block", "_outputs", "send_solution", "publish_attitude",
+                          "_status_loop")}
     top = sorted(own.items(), key=lambda kv: kv[1], reverse=True)[:n]
     print(f"\npy-spy ({path}): {total} busy samples in the 1 kHz phase; inclusive share "
           f"of: {paths}")
