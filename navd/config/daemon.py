@@ -65,7 +65,7 @@ class DaemonSection:
     # between output instants (0: read every datagram as it arrives), and is read again
     # this long before the next output instant's sample is due
     read_hold_max: float = _f(20.0, "ms")
-    read_hold_margin: float = _f(2.0, "ms")
+    read_hold_margin: float = _f(3.0, "ms")
     # navigating without a fused GNSS fix for this long (sensor time) is "coasting"
     gnss_timeout: float = _f(3.0, "s")
 

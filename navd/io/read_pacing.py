@@ -46,7 +46,7 @@ class ReadPacer:
                  "max_hold_us", "min_hold_us", "periods_us", "t_last")
 
     def __init__(self, periods_us: Sequence[int], max_hold_us: int = 20_000,
-                 margin_us: int = 2_000, min_hold_us: int = 1_000) -> None:
+                 margin_us: int = 3_000, min_hold_us: int = 1_000) -> None:
         if any(p <= 0 for p in periods_us) or max_hold_us < 0 or margin_us < 0:
             raise ValueError("ReadPacer: bad limits")
         self.periods_us = tuple(periods_us)
