@@ -9,11 +9,14 @@ Figures (issue 18 targets: <= 5 % of one core, p99 IMU-in -> ATTITUDE-out <= 2 m
 no loss):
   CPU          utime + stime of the daemon process (all its threads, /proc/<pid>/stat) over
                the streaming phase, as % of one core.  Start-up (imports, JIT warm-up) excluded.
-  latency      measured two ways.  navd: the daemon's own, from the host time it read the
-               IMU datagram (before decoding) to the return of the ATTITUDE sendto, per
-               output (Zenoh status).  end-to-end: here, from our sendto of the IMU datagram
-               that completed an output instant to our receipt of the ATTITUDE carrying that
-               time_boot_ms (adds both kernel hops and the receiving thread's wake-up).
+  latency      measured two ways.  navd: the daemon's own, from the kernel's arrival stamp
+               of the read's last IMU datagram (the read time where there is no stamp), so
+               time spent unread in the socket during a read-pacing hold counts, to the
+               return of the ATTITUDE sendto, per output (Zenoh status).  end-to-end:
+               here, from just before our sendto of the IMU datagram that completed an
+               output instant to our receipt of the ATTITUDE carrying that time_boot_ms
+               (adds both kernel hops and the receiving thread's wake-up, which shares a
+               GIL with the sending thread).
   lost         IMU datagrams sent minus IMU samples the estimator consumed.
   sweep        the same at K kHz (the 1 kHz data played K times faster, same time line);
                "held" = no loss and no queue drop.
@@ -207,11 +210,14 @@ def send_paced(sock: socket.socket, addr: tuple[str, int],
         delay = wall0 + (t_us - t0_us) * 1e-6 / rate_factor - time.monotonic()
         if delay > 0:
             time.sleep(delay)
+        # taken before the sendto: on loopback the datagram is in navd's socket (and navd
+        # possibly at work on it) before sendto returns
+        t_send = time.monotonic_ns()
         sock.sendto(frame, addr)
         if is_imu:
             n_imu += 1
             if t_us % 20_000 == 0:
-                sent_at[t_us // 1000] = time.monotonic_ns()
+                sent_at[t_us // 1000] = t_send
     return n_imu, time.monotonic() - wall0
 
 

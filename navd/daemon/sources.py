@@ -62,7 +62,9 @@ class ReceiveClock:
     """``clock_us`` for an adapter link that also keeps the full-resolution time it handed out.
 
     A link reads the clock once per datagram/frame, before decoding, and then calls back with
-    the samples decoded from it, so ``last_ns`` is the receive time of those samples.
+    the samples decoded from it, so ``last_ns`` is the receive time of those samples.  A link
+    that knows when its input arrived (the kernel's stamp of a UDP read, which the read
+    pacing may take well after the arrival) hands that time to :meth:`at_ns` instead.
     """
 
     __slots__ = ("last_ns",)
@@ -73,6 +75,12 @@ class ReceiveClock:
     def __call__(self) -> int:
         self.last_ns = time.monotonic_ns()
         return self.last_ns // 1000
+
+    def at_ns(self, ns: int) -> int:
+        """Like a call, for input that arrived at ``ns`` (``time.monotonic_ns``), already
+        past: the time kept and returned (us) is that one."""
+        self.last_ns = ns
+        return ns // 1000
 
 
 class SampleQueue:

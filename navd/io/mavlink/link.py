@@ -15,9 +15,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
+import fcntl
 import logging
 import os
 import socket
+import struct
+import sys
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar, cast
@@ -75,6 +80,11 @@ _BATCH_BYTES = _RX_BYTES + _MAX_BATCH * 512
 # ImuBlocks of the batch lane per UDP link: queued but not yet consumed by the estimator
 # task, at most this many (beyond, the per-datagram path queues ImuSamples)
 _BLOCK_POOL = 8
+# ioctl: the receive time of the last datagram read from a socket (struct timespec of the
+# wall clock, native longs); Linux's SIOCGSTAMPNS (SIOCGSTAMPNS_OLD since 5.1, same value)
+_SIOCGSTAMPNS = 0x8907
+_TIMESPEC = struct.Struct("ll")
+_STAMP_ZERO = bytes(_TIMESPEC.size)
 
 _K = TypeVar("_K")
 
@@ -156,7 +166,7 @@ class RxBatch:
     ``offs[0] == 0``), received from ``addrs[i]``; ``n`` datagrams.
     """
 
-    __slots__ = ("addrs", "data", "n", "offs", "u8", "view")
+    __slots__ = ("addrs", "arrived_ns", "data", "n", "offs", "u8", "view")
 
     def __init__(self, size: int = _BATCH_BYTES) -> None:
         self.data = bytearray(size)
@@ -165,6 +175,9 @@ class RxBatch:
         self.offs = np.zeros(_MAX_BATCH + 1, np.int64)
         self.addrs: list[tuple[Any, ...]] = []
         self.n = 0
+        # when the last datagram reached the host (time.monotonic_ns, the kernel's stamp);
+        # 0: not known (then the time of the read counts)
+        self.arrived_ns = 0
 
     def fill(self, datagrams: list[tuple[bytes, tuple[Any, ...]]]) -> RxBatch:
         """Put (datagram, address) pairs in, as a read of them would (tests, benchmarks)."""
@@ -176,6 +189,7 @@ class RxBatch:
             self.offs[k + 1] = off
             self.addrs.append(addr)
         self.n = len(datagrams)
+        self.arrived_ns = 0
         return self
 
     def datagram(self, i: int) -> bytes:
@@ -216,7 +230,9 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
 
     def batch_received(self, batch: RxBatch) -> None:
         """The datagrams of one read (``batch``, at least one), as :meth:`datagram_received`
-        of each in turn, all read at one receive time (one clock reading per read).
+        of each in turn, all read at one receive time (one clock reading per read; the
+        arrival of the read's last datagram when the transport stamped it and the link's
+        clock takes it, see :meth:`_receive_time`).
 
         The batch lane: when nothing is muted and every datagram came from the one address
         that delivered samples within USEFUL_US, the decoder takes the HIGHRES_IMU
@@ -226,7 +242,7 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
         before it is handed on first).  The same samples, counters, useful-address table,
         ``last_peer`` and read pacing notes as datagram by datagram."""
         n = batch.n
-        now = self.clock_us()
+        now = self._receive_time(batch.arrived_ns)
         addrs = batch.addrs
         addr = addrs[0]
         dec = self.decoder
@@ -275,6 +291,17 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
             if len(useful) >= _MAX_PEERS and addr not in useful:
                 useful.clear()
             useful[addr] = now
+
+    def _receive_time(self, arrived_ns: int) -> int:
+        """The receive time (us) of a read whose last datagram arrived at ``arrived_ns``
+        (0: unknown).  Only a clock with ``at_ns`` (the daemon's
+        :class:`navd.daemon.sources.ReceiveClock`, on ``time.monotonic_ns``) takes the
+        arrival; any other clock (a test's, a benchmark's sensor-time clock) is read as
+        before, so the stamps never mix two time lines."""
+        at = getattr(self.clock_us, "at_ns", None)
+        if arrived_ns and at is not None:
+            return int(at(arrived_ns))
+        return self.clock_us()
 
     def _datagram(self, data: bytes, addr: tuple[Any, ...], now: int) -> None:
         """One datagram received at ``now`` (us) from ``addr``: decoded, samples delivered."""
@@ -412,6 +439,11 @@ class PacedUdpTransport(asyncio.DatagramTransport):
         self._fd = sock.fileno()
         self._protocol = protocol
         self._batch = RxBatch()
+        # the kernel's arrival stamp of the last datagram read (SIOCGSTAMPNS, Linux): the
+        # latency navd reports then counts the time a datagram waited unread in the socket
+        # during a hold; asking once here turns the socket's stamping on
+        self._stamps = sys.platform.startswith("linux")
+        self._arrival_ns()
         self._closing = False
         self._timer: asyncio.TimerHandle | None = None
         self.hold_us: Callable[[], int] | None = None
@@ -456,11 +488,13 @@ class PacedUdpTransport(asyncio.DatagramTransport):
             addrs.append(addr)
             if off > limit:  # hand on what was read so far, read on into an empty buffer
                 batch.n = k
+                batch.arrived_ns = self._arrival_ns()
                 deliver(batch)
                 addrs.clear()
                 off = k = 0
         if k:
             batch.n = k
+            batch.arrived_ns = self._arrival_ns()
             deliver(batch)
             addrs.clear()
         if not drained:
@@ -473,6 +507,26 @@ class PacedUdpTransport(asyncio.DatagramTransport):
         if us > 0:
             self._loop.remove_reader(self._fd)
             self._timer = self._loop.call_later(us * 1e-6, self._resume)
+
+    def _arrival_ns(self) -> int:
+        """When the last datagram read reached the host, as ``time.monotonic_ns`` (the
+        kernel stamps it on the wall clock: converted with the two clocks' present
+        offset); 0 when not known (no datagram stamped yet, not Linux, or an implausible
+        stamp: in the future, or older than a second)."""
+        if not self._stamps:
+            return 0
+        try:
+            raw = fcntl.ioctl(self._fd, _SIOCGSTAMPNS, _STAMP_ZERO)
+        except OSError as exc:
+            if exc.errno != errno.ENOENT:  # not "nothing stamped yet": no stamps here
+                self._stamps = False
+            return 0
+        sec, nsec = _TIMESPEC.unpack(raw)
+        mono = time.monotonic_ns()
+        ns: int = sec * 1_000_000_000 + nsec - (time.time_ns() - mono)
+        if mono - 1_000_000_000 < ns <= mono:
+            return ns
+        return 0
 
     def _resume(self) -> None:
         self._timer = None
