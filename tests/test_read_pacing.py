@@ -8,7 +8,6 @@ import socket
 import sys
 import threading
 import time
-from collections.abc import Callable
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
@@ -231,34 +230,29 @@ def test_a_read_after_a_hold_is_timed_at_the_arrival() -> None:
     read 80 ms later: the latency navd reports counts the wait in the socket."""
     from navd.daemon.sources import ReceiveClock
 
-    def run(clock: Callable[[], int]) -> tuple[int, int, int]:
-        got: list[int] = []
-
-        async def main() -> tuple[int, int, int]:
-            cfg = MavlinkInputConfig(nominal_imu_rate_hz=1000.0, relock_s=None)
-            link = await MavlinkLink.open("udpin:127.0.0.1:0", MavlinkDecoder(cfg),
-                                          lambda s: got.append(s.t_us),
-                                          clock_us=clock)
-            t = link._udp_transport
-            assert isinstance(t, PacedUdpTransport)
-            loop = asyncio.get_running_loop()
-            loop.remove_reader(t._fd)  # held: this test reads by hand
-            port = link.local_address[1] if link.local_address else 0
-            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            sent = time.monotonic_ns()
-            s.sendto(_imu_frames(1)[0], ("127.0.0.1", port))
-            s.close()
-            await asyncio.sleep(0.08)
-            before_read = time.monotonic_ns()
-            t._readable()
-            link.close()
-            assert got, "no sample decoded"
-            return sent, before_read, t._batch.arrived_ns
-
-        return asyncio.run(main())
-
     rc = ReceiveClock()
-    sent, before_read, arrived = run(rc)
+    got: list[int] = []
+
+    async def main() -> tuple[int, int, int]:
+        cfg = MavlinkInputConfig(nominal_imu_rate_hz=1000.0, relock_s=None)
+        link = await MavlinkLink.open("udpin:127.0.0.1:0", MavlinkDecoder(cfg),
+                                      lambda s: got.append(s.t_us), clock_us=rc)
+        t = link._udp_transport
+        assert isinstance(t, PacedUdpTransport)
+        asyncio.get_running_loop().remove_reader(t._fd)  # held: this test reads by hand
+        port = link.local_address[1] if link.local_address else 0
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sent = time.monotonic_ns()
+        s.sendto(_imu_frames(1)[0], ("127.0.0.1", port))
+        s.close()
+        await asyncio.sleep(0.08)
+        before_read = time.monotonic_ns()
+        t._readable()
+        link.close()
+        return sent, before_read, t._batch.arrived_ns
+
+    sent, before_read, arrived = asyncio.run(main())
+    assert got == [1000], got
     assert 0 < arrived - sent < 20_000_000, (arrived - sent) / 1e6
     assert rc.last_ns == arrived  # the receive time handed on is the arrival
     assert before_read - rc.last_ns > 50_000_000
@@ -277,4 +271,6 @@ def test_a_clock_without_at_ns_is_read_not_replaced() -> None:
     p2 = MavlinkUdpProtocol(None, None, rc)
     assert p2._receive_time(5_000_000) == 5_000
     assert rc.last_ns == 5_000_000
-    assert p2._receive_time(0) == rc.last_ns // 1000  # unknown arrival: the clock is read
+    now_us = p2._receive_time(0)  # unknown arrival: the clock is read (now), not at_ns(0)
+    assert abs(now_us - time.monotonic_ns() // 1000) < 1_000_000, now_us
+    assert rc.last_ns // 1000 == now_us

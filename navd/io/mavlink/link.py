@@ -219,6 +219,8 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
         # free blocks of its pool
         self.on_block: Callable[[ImuBlock], None] | None = None
         self._free_blocks = ImuBlock.pool(_BLOCK_POOL)
+        # the clock's way to take a read's arrival time, if it has one (_receive_time)
+        self._clock_at: Callable[[int], int] | None = getattr(self.clock_us, "at_ns", None)
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         # The selector loop's datagram transport does not subclass asyncio.DatagramTransport
@@ -298,9 +300,9 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
         :class:`navd.daemon.sources.ReceiveClock`, on ``time.monotonic_ns``) takes the
         arrival; any other clock (a test's, a benchmark's sensor-time clock) is read as
         before, so the stamps never mix two time lines."""
-        at = getattr(self.clock_us, "at_ns", None)
+        at = self._clock_at
         if arrived_ns and at is not None:
-            return int(at(arrived_ns))
+            return at(arrived_ns)
         return self.clock_us()
 
     def _datagram(self, data: bytes, addr: tuple[Any, ...], now: int) -> None:
