@@ -96,6 +96,9 @@ async def run(a: argparse.Namespace) -> None:
     receive = link._udp.datagram_received
     transport = link._udp_transport
     assert isinstance(transport, PacedUdpTransport)
+    # the kernel's arrival stamps are on the host's clock, not this feed's sensor-time
+    # clock: unknown arrivals make the link read the (patched) receive clock instead
+    transport._stamps = False
     readable = transport._readable
     # the hold is computed but not taken: this feed is not in real time, and a hold would
     # take the socket off the loop (the loop's timer and reader bookkeeping per hold is not

@@ -22,7 +22,7 @@ from navd.config.daemon import DaemonConfig, DaemonSection, MavlinkSection, Zeno
 from navd.daemon.adapters import mavlink_input_config, zenoh_session_config
 from navd.daemon.service import SdNotifier, watchdog_interval_s
 from navd.daemon.sinks import LatencyStats
-from navd.daemon.sources import SampleQueue
+from navd.daemon.sources import Item, SampleQueue
 from navd.diag import RateLimitedLog
 from navd.io.mavlink import MavlinkDecoder
 from navd.io.recording import RecordingReader, RecordingWriter
@@ -178,6 +178,79 @@ def test_queue_drops_the_oldest_and_counts(caplog: pytest.LogCaptureFixture) -> 
     # the newest 15 survive (the closing marker took one slot), in order
     assert got == list(range(26, 41))
     assert len([r for r in caplog.records if "queue full" in r.message]) == 1
+
+
+def _t(item: Item | None) -> int:
+    assert item is not None and isinstance(item[1], ImuSample)
+    return item[1].t_us
+
+
+def test_queue_hands_items_direct_to_a_parked_consumer_in_order() -> None:
+    """GIVEN a sample queue whose consumer names a direct handler and is parked in get(),
+    WHEN samples are put from callbacks, one of them while the handler is running (it puts
+    another), and one while items are already queued,
+    THEN the handler takes them in the callback in put order, the one put during a
+    handled item is queued (not handled inside it) and comes out of get() next, an item
+    put behind queued ones waits its turn, and close() still ends the stream with None."""
+    async def go() -> tuple[list[tuple[str, int]], list[int]]:
+        q = SampleQueue(16, RateLimitedLog(logging.getLogger("t"), 60.0))
+        seen: list[tuple[str, int]] = []
+
+        def direct(item: Item) -> None:
+            seen.append(("direct", _t(item)))
+            if _t(item) == 2:
+                q.put(0, _imu(3))  # put from inside a direct hand-off: queued
+
+        q.direct = direct
+        taken: list[int] = []
+
+        async def consume() -> None:
+            while (item := await q.get()) is not None:
+                seen.append(("get", _t(item)))
+                taken.append(_t(item))
+                if _t(item) == 3:
+                    # while the consumer is busy (not parked), puts are queued
+                    q.put(0, _imu(4))
+                    q.put(0, _imu(5))
+
+        task = asyncio.get_running_loop().create_task(consume())
+        await asyncio.sleep(0)  # the consumer parks
+        loop = asyncio.get_running_loop()
+        loop.call_soon(q.put, 0, _imu(1))
+        loop.call_soon(q.put, 0, _imu(2))
+        for _ in range(5):
+            await asyncio.sleep(0)
+        loop.call_soon(q.put, 0, _imu(6))
+        await asyncio.sleep(0)
+        q.close()
+        await task
+        return seen, taken
+
+    seen, taken = asyncio.run(go())
+    assert seen == [("direct", 1), ("direct", 2), ("get", 3), ("get", 4), ("get", 5),
+                    ("direct", 6)]
+    assert taken == [3, 4, 5]
+
+
+def test_queue_direct_handler_failure_is_raised_in_the_consumer() -> None:
+    """GIVEN a parked consumer whose direct handler raises on a sample,
+    WHEN that sample is put,
+    THEN the put returns (the producer's read goes on) and the consumer's get() raises the
+    handler's exception, as if it had taken the item and failed on it."""
+    async def go() -> None:
+        q = SampleQueue(16, RateLimitedLog(logging.getLogger("t"), 60.0))
+
+        def direct(item: Item) -> None:
+            raise ZeroDivisionError("handler")
+
+        q.direct = direct
+        task = asyncio.get_running_loop().create_task(q.get())
+        await asyncio.sleep(0)
+        q.put(0, _imu(1))  # must not raise here
+        with pytest.raises(ZeroDivisionError, match="handler"):
+            await task
+
+    asyncio.run(go())
 
 
 def test_output_schedule_on_sensor_time() -> None:

@@ -6,7 +6,8 @@ estimator  the queue's only consumer: passes each sample through the clock guard
            (:mod:`navd.core.clock_guard`), records it, pushes it into the estimator
            (sensor time only) and, right after a push that carried the state past a sink's
            next output instant, hands that sink the solution and notes the latency from the
-           packet's host receive time to the send.
+           packet's host receive time to the send.  While it waits on an empty queue the
+           same handling runs in the read's callback (``SampleQueue.direct``).
 status     every ``status_period_s``: Zenoh status, sd_notify STATUS, rate-limited warnings
            for what the estimator refused, an info line every ``log_period_s``.
 watchdog   WATCHDOG=1 every half ``WATCHDOG_USEC``, only while outputs are produced
@@ -60,7 +61,7 @@ from navd.daemon.sinks import (
     Sink,
     ZenohSink,
 )
-from navd.daemon.sources import InputOpenError, SampleQueue, Sources
+from navd.daemon.sources import InputOpenError, Item, SampleQueue, Sources
 from navd.diag import RateLimitedLog
 from navd.io.common import Sample
 from navd.io.mavlink import MavlinkEncoder, MavlinkLink
@@ -504,35 +505,42 @@ class Daemon:
     # -- the estimator task -------------------------------------------------------------------
 
     async def _estimate(self) -> None:
-        get, ready = self.queue.get, self.queue.ready
-        guard, on_clock = self.clock_guard.push, self.clock_guard.on_clock
-        push, block = self._push, self._push_block
+        get, ready, take = self.queue.get, self.queue.ready, self._take
         n = 0
         self._restarts_seen = self.est.restarts
         self._navigating = False
         # every sink's schedule has its next instant at or after _quiet_until (sensor us)
         # in estimator epoch _quiet_epoch; -1: ask them
         self._quiet_until, self._quiet_epoch = -1, self.est.restarts
-        while True:
-            # what is queued is taken without a get() coroutine per sample (issue 18)
-            item = ready.popleft() if ready else await get()
-            if item is None:
-                break
-            recv_ns, sample = item
-            host_us = recv_ns // 1000 if recv_ns else None
-            # the clock guard holds samples off the current sensor clock until a new clock
-            # is confirmed; usually it hands back just this sample (on_clock: that case
-            # without a list per sample)
-            if isinstance(sample, ImuBlock):
-                block(sample, recv_ns, host_us)
-            elif type(sample) is ImuSample and on_clock(sample.t_us, host_us):
-                push(sample, recv_ns)
-            else:
-                for s in guard(sample, host_us):
-                    push(s, recv_ns)
-            n += 1
-            if n % 64 == 0:
-                await asyncio.sleep(0)  # a long backlog must not starve the sockets
+        # while this task waits on an empty queue, a read's samples are taken in the
+        # read's own callback (issue 18: no task wake-up per read; SampleQueue.direct)
+        self.queue.direct = take
+        try:
+            while True:
+                # what is queued is taken without a get() coroutine per sample (issue 18)
+                item = ready.popleft() if ready else await get()
+                if item is None:
+                    break
+                take(item)
+                n += 1
+                if n % 64 == 0:
+                    await asyncio.sleep(0)  # a long backlog must not starve the sockets
+        finally:
+            self.queue.direct = None
+
+    def _take(self, item: Item) -> None:
+        """One queue item: through the clock guard, which holds samples off the current
+        sensor clock until a new clock is confirmed (usually it passes just this sample:
+        ``on_clock``, that case without a list per sample), into the estimator."""
+        recv_ns, sample = item
+        host_us = recv_ns // 1000 if recv_ns else None
+        if isinstance(sample, ImuBlock):
+            self._push_block(sample, recv_ns, host_us)
+        elif type(sample) is ImuSample and self.clock_guard.on_clock(sample.t_us, host_us):
+            self._push(sample, recv_ns)
+        else:
+            for s in self.clock_guard.push(sample, host_us):
+                self._push(s, recv_ns)
 
     def _push(self, s: Sample, recv_ns: int) -> None:
         """One sample the clock guard passed: recorded, pushed, outputs when due."""

@@ -55,7 +55,8 @@ __all__ = [
 _log = logging.getLogger("navd.daemon.sources")
 
 # (recv_t_ns, sample or a block of IMU samples); None ends the stream
-QueueItem = tuple[int, Sample | ImuBlock] | None
+Item = tuple[int, Sample | ImuBlock]
+QueueItem = Item | None
 
 
 class ReceiveClock:
@@ -93,6 +94,13 @@ class SampleQueue:
     every sample finds the consumer waiting, and asyncio.Queue's bookkeeping around that
     hand-off (getter and putter lists, the unfinished-task count and its Event) cost about as
     much again as waking the consumer (benchmarks/loop_floor.py, issue 18).
+
+    A consumer may also name a ``direct`` handler: an item put while the consumer is parked
+    on an empty queue is then handled at once, inside the producer's callback, instead of
+    waking the consumer's task (one more event-loop turn, a future and a task step per read
+    at 1 kHz).  The order is the same: only an item that would have been taken next, by a
+    consumer with nothing else to do, goes direct.  An exception from the handler is the
+    consumer's: it is raised from its pending :meth:`get`, as if it had taken the item.
     """
 
     def __init__(self, maxsize: int, log: RateLimitedLog) -> None:
@@ -102,6 +110,8 @@ class SampleQueue:
         # (popleft while non-empty, get() when empty: the same items in the same order)
         self.ready = self._q
         self._waiter: asyncio.Future[None] | None = None  # the parked consumer, if any
+        self.direct: Callable[[Item], None] | None = None
+        self._in_direct = False  # an item put while one is handled directly is queued
         self._log = log
         self.drops = 0
         self.high_water = 0
@@ -113,6 +123,20 @@ class SampleQueue:
 
     def _put(self, item: QueueItem) -> None:
         q = self._q
+        w = self._waiter
+        if w is not None and item is not None and not q and not self._in_direct:
+            fn = self.direct
+            if fn is not None:
+                self._in_direct = True
+                try:
+                    fn(item)
+                except Exception as exc:  # the consumer's failure, raised where it waits
+                    self._waiter = None
+                    if not w.done():
+                        w.set_exception(exc)
+                finally:
+                    self._in_direct = False
+                return
         if len(q) >= self.maxsize:
             old = q.popleft()
             if old is not None and type(old[1]) is ImuBlock:
