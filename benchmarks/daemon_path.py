@@ -66,17 +66,14 @@ async def run(a: argparse.Namespace) -> None:
         "[daemon]\nstatus_period_s = 1000\nlog_period_s = 3600\n")
 
     zenoh_hash = hashlib.sha1()
-    dumps = nz.json.dumps
+    text_of = nz.attitude_text
 
-    class _Json:  # the Zenoh attitude text, as published
-        @staticmethod
-        def dumps(*args: Any, **kw: Any) -> str:
-            text = dumps(*args, **kw)
-            if '"quat_wxyz"' in text:
-                zenoh_hash.update(text.encode())
-            return text
+    def attitude_text(*args: Any, **kw: Any) -> str:  # the Zenoh attitude text, as published
+        text = text_of(*args, **kw)
+        zenoh_hash.update(text.encode())
+        return text
 
-    nz.json = _Json  # type: ignore[assignment]
+    nz.attitude_text = attitude_text
 
     class _Clock:  # the receive clock: host time = sensor time
         now = 0
@@ -85,7 +82,7 @@ async def run(a: argparse.Namespace) -> None:
         def monotonic_ns() -> int:
             return _Clock.now
 
-    sources.time = _Clock  # type: ignore[assignment]
+    setattr(sources, "time", _Clock)  # noqa: B010 - the module attribute the link reads
 
     cfg = load_daemon_config(tmp / "navd.toml", [])
     d = Daemon(cfg, handle_signals=False)
@@ -112,6 +109,7 @@ async def run(a: argparse.Namespace) -> None:
 
     transport.hold_us = hold_us
     dest = link.local_address
+    assert dest is not None
     tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     tx.bind(("127.0.0.1", 0))
     send = tx.sendto

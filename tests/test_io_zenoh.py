@@ -17,6 +17,7 @@ from navd.io.zenoh import (
     ZenohPublisher,
     ZenohSubscriber,
     attitude_payload,
+    attitude_text,
 )
 from navd.types import NavSolution
 
@@ -65,6 +66,43 @@ def test_attitude_payload_fields_and_nan_as_null() -> None:
     assert p["euler_deg"] == pytest.approx([1.0, -2.0, 45.0])
     assert p["sigma_deg"] == [None, 0.0, None] and p["aligned"] is True
     json.dumps(p, allow_nan=False)
+
+
+def test_attitude_text_is_json_dumps_of_the_payload_character_for_character() -> None:
+    """GIVEN solutions with random attitudes, rates and sigmas, and ones with 0.0, -0.0,
+    NaN, +-inf, subnormal and huge values in every position, aligned or not, initialised
+    or not, and numpy float64 fields,
+    WHEN the published attitude text is made,
+    THEN it is exactly json.dumps(attitude_payload(...)) as strict compact JSON (what was
+    published before it was written directly), for any aligned bound."""
+    import numpy as np
+
+    rng = np.random.default_rng(7)
+    special = (0.0, -0.0, math.nan, math.inf, -math.inf, 5e-324, 1.7e308, -1e-300, 1e16)
+    cases: list[NavSolution] = []
+    for _ in range(300):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        cases.append(solution(
+            t_us=int(rng.integers(0, 2**62)), quat_nb=tuple(float(v) for v in q),
+            roll_rad=float(rng.uniform(-math.pi, math.pi)),
+            pitch_rad=float(rng.uniform(-1.5, 1.5)), yaw_rad=float(rng.uniform(-4, 4)),
+            att_sd_rad=tuple(float(v) for v in rng.uniform(0.0, 0.2, 3)),
+            heading_aligned=bool(rng.integers(2)), heading_initialised=bool(rng.integers(2))))
+    for pos in range(10):
+        for v in special:
+            vals = [0.5, -0.5, 0.5, 0.5, 0.1, -0.2, 3.0, 0.001, 0.002, 0.01]
+            vals[pos] = v
+            cases.append(solution(quat_nb=tuple(vals[:4]), roll_rad=vals[4],
+                                  pitch_rad=vals[5], yaw_rad=vals[6],
+                                  att_sd_rad=tuple(vals[7:])))
+    cases.append(solution(quat_nb=tuple(np.float64(v) for v in (0.5, 0.5, -0.5, 0.5)),
+                          roll_rad=np.float64(0.3), att_sd_rad=(np.float64(0.01), 0.0, 0.1)))
+    for sol in cases:
+        for bound in (math.inf, math.radians(2.0), 0.0):
+            want = json.dumps(attitude_payload(sol, bound), allow_nan=False,
+                              separators=(",", ":"))
+            assert attitude_text(sol, bound) == want
 
 
 def test_publish_and_receive_over_loopback() -> None:

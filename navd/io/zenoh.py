@@ -47,6 +47,7 @@ __all__ = [
     "ZenohSubscriber",
     "attitude_key",
     "attitude_payload",
+    "attitude_text",
     "status_key",
 ]
 
@@ -132,6 +133,34 @@ def attitude_payload(sol: NavSolution, aligned_sd_rad: float = math.inf) -> dict
     }
 
 
+_float_text = float.__repr__  # what json writes for a float (a numpy scalar's repr differs)
+
+
+def attitude_text(sol: NavSolution, aligned_sd_rad: float = math.inf) -> str:
+    """``attitude_payload`` as the compact JSON text navd publishes: the same characters as
+    ``json.dumps(attitude_payload(sol, aligned_sd_rad), allow_nan=False,
+    separators=(",", ":"))``, written directly (issue 18: the dict, its lists and the
+    encoder's own machinery were a fifth of the daemon's per-output Python work)."""
+    d = math.degrees
+    w, x, y, z = sol.quat_nb
+    r, p, h = d(sol.roll_rad), d(sol.pitch_rad), d(sol.yaw_rad)
+    sr, sp, sh = sol.att_sd_rad
+    sr, sp, sh = d(sr), d(sp), d(sh)
+    vals = (w, x, y, z, r, p, h, sr, sp, sh)
+    f = _float_text
+    if math.isfinite(w + x + y + z + r + p + h + sr + sp + sh):
+        q = f"{f(w)},{f(x)},{f(y)},{f(z)}],\"euler_deg\":[{f(r)},{f(p)},{f(h)}],\"sigma_deg\":[" \
+            f"{f(sr)},{f(sp)},{f(sh)}"
+    else:  # JSON has no NaN or infinity: null, as _num gives json.dumps
+        t = [f(float(v)) if math.isfinite(v) else "null" for v in vals]
+        q = f"{t[0]},{t[1]},{t[2]},{t[3]}],\"euler_deg\":[{t[4]},{t[5]},{t[6]}]," \
+            f"\"sigma_deg\":[{t[7]},{t[8]},{t[9]}"
+    aligned = "true" if sol.heading_good(aligned_sd_rad) else "false"
+    init = "true" if sol.heading_initialised or sol.heading_aligned else "false"
+    return (f'{{"schema":{SCHEMA_VERSION},"t_us":{int(sol.t_us)},"quat_wxyz":[{q}],'
+            f'"aligned":{aligned},"heading_initialised":{init}}}')
+
+
 def _scrub(obj: Any) -> Any:
     """Replace non-finite floats (anywhere in the structure) by None for strict JSON."""
     if isinstance(obj, float):
@@ -174,29 +203,31 @@ class ZenohPublisher:
         return self._session
 
     def publish_attitude(self, sol: NavSolution, aligned_sd_rad: float = math.inf) -> None:
-        # attitude_payload puts no non-finite float in (_num): nothing for _scrub to do
-        self._put(self._att, attitude_payload(sol, aligned_sd_rad), "attitude", scrub=False)
+        self._send(self._att, attitude_text(sol, aligned_sd_rad), "attitude_put_error",
+                   "attitude_sent")
 
     def publish_status(self, status: Mapping[str, Any]) -> None:
         self._put(self._status, {**status, "schema": SCHEMA_VERSION}, "status")
 
-    def _put(self, pub: Any, obj: Mapping[str, Any], what: str, *, scrub: bool = True) -> None:
+    def _put(self, pub: Any, obj: Mapping[str, Any], what: str) -> None:
         try:
-            text = json.dumps(_scrub(obj) if scrub else obj, allow_nan=False,
-                              separators=(",", ":"))
+            text = json.dumps(_scrub(obj), allow_nan=False, separators=(",", ":"))
         except (TypeError, ValueError) as exc:
             # A status dict with an unserialisable value is a daemon bug; keep publishing
             # attitude regardless.
             self.counters.inc(f"{what}_unserialisable")
             _log.warning("zenoh: cannot serialise %s: %s", what, exc)
             return
+        self._send(pub, text, f"{what}_put_error", f"{what}_sent")
+
+    def _send(self, pub: Any, text: str, failed: str, sent: str) -> None:
         try:
             pub.put(text)
         except zenoh.ZError as exc:
-            self.counters.inc(f"{what}_put_error")
-            _log.warning("zenoh: put %s failed: %s", what, exc)
+            self.counters.inc(failed)
+            _log.warning("zenoh: put %s failed: %s", sent.rsplit("_", 1)[0], exc)
             return
-        self.counters.inc(f"{what}_sent")
+        self.counters.inc(sent)
 
     def close(self) -> None:
         if self._session is not None:
