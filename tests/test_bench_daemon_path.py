@@ -1,35 +1,43 @@
 """benchmarks/daemon_path.py measures the steady 1 kHz path only if its warm-up reaches the
-estimator as sent; it checks that itself and raises otherwise."""
+estimator as sent; it checks that itself and raises otherwise.  Run in a subprocess: the
+benchmark replaces module attributes (the receive clock) for its whole process."""
 
 from __future__ import annotations
 
-import pytest
-from bench_util import load_benchmark
+import os
+import subprocess
+import sys
+from pathlib import Path
 
-daemon_path = load_benchmark("daemon_path")
+ROOT = Path(__file__).resolve().parents[1]
+ARGS = ["--seconds", "3", "--trace", "200", "--top", "3"]
 
 
-def test_daemon_path_runs_with_its_warm_up_reaching_the_estimator(
-        capsys: pytest.CaptureFixture[str]) -> None:
+def _run(code: str) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "benchmarks")])}
+    return subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True,
+                          text=True, timeout=600, check=False)
+
+
+def test_daemon_path_runs_with_its_warm_up_reaching_the_estimator() -> None:
     """GIVEN the daemon-path benchmark on a short run,
     WHEN it runs,
     THEN its warm-up check passes (the estimator navigating, every warm-up IMU sample
     taken) and it prints its per-datagram figures and output hashes."""
-    assert daemon_path.main(["--seconds", "3", "--trace", "200", "--top", "3"]) == 0
-    out = capsys.readouterr().out
-    assert "bytecode instructions" in out and "outputs: MAVLink" in out
+    r = _run(f"import daemon_path; raise SystemExit(daemon_path.main({ARGS!r}))")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "bytecode instructions" in r.stdout and "outputs: MAVLink" in r.stdout
 
 
-def test_daemon_path_refuses_a_warm_up_that_did_not_reach_the_estimator(
-        monkeypatch: pytest.MonkeyPatch) -> None:
+def test_daemon_path_refuses_a_warm_up_that_did_not_reach_the_estimator() -> None:
     """GIVEN the daemon-path benchmark whose link takes the kernel's host-time arrival
     stamps again (the bug it had: its sensor-time clock mixed with host time),
     WHEN it runs,
-    THEN it raises instead of printing figures of the wrong path."""
-    from navd.io.mavlink.link import PacedUdpTransport
-
-    # the benchmark turns the stamps off after opening; keep them on behind its back
-    monkeypatch.setattr(PacedUdpTransport, "_stamps",
-                        property(lambda self: True, lambda self, value: None), raising=False)
-    with pytest.raises(RuntimeError, match="warm-up"):
-        daemon_path.main(["--seconds", "3", "--trace", "200", "--top", "3"])
+    THEN it fails with the warm-up error instead of printing figures of the wrong path."""
+    r = _run("from navd.io.mavlink.link import PacedUdpTransport as P\n"
+             # the benchmark turns the stamps off after opening: keep them on behind its back
+             "P._stamps = property(lambda self: True, lambda self, value: None)\n"
+             f"import daemon_path; raise SystemExit(daemon_path.main({ARGS!r}))")
+    assert r.returncode != 0
+    assert "warm-up: the estimator took" in r.stderr, r.stderr[-2000:]
+    assert "bytecode instructions" not in r.stdout
