@@ -141,7 +141,7 @@ async def run(a: argparse.Namespace) -> None:
     # and release them into the traced part: 678 instructions per datagram were measured
     # so, against 304)
     n_imu = sum(1 for _, _, is_imu in events[:warm] if is_imu)
-    if not d.est.initialized or d.est.counters.get("imu", 0) < n_imu - 10:
+    if not d.est.initialized or d.est.counters.get("imu", 0) != n_imu:
         raise RuntimeError(f"warm-up: the estimator took {d.est.counters.get('imu', 0)} of "
                            f"{n_imu} IMU samples (navigating: {d.est.initialized})")
     traced = frames[warm:warm + a.trace]

@@ -140,19 +140,20 @@ def attitude_text(sol: NavSolution, aligned_sd_rad: float = math.inf) -> str:
     """``attitude_payload`` as the compact JSON text navd publishes: the same characters as
     ``json.dumps(attitude_payload(sol, aligned_sd_rad), allow_nan=False,
     separators=(",", ":"))``, written directly (issue 18: the dict, its lists and the
-    encoder's own machinery were a fifth of the daemon's per-output Python work)."""
+    encoder's own machinery were ~20 of the ~80 bytecode instructions per datagram the
+    outputs cost, ``benchmarks/daemon_path.py``; now ~10)."""
     d = math.degrees
     w, x, y, z = sol.quat_nb
     r, p, h = d(sol.roll_rad), d(sol.pitch_rad), d(sol.yaw_rad)
     sr, sp, sh = sol.att_sd_rad
     sr, sp, sh = d(sr), d(sp), d(sh)
-    vals = (w, x, y, z, r, p, h, sr, sp, sh)
     f = _float_text
     if math.isfinite(w + x + y + z + r + p + h + sr + sp + sh):
         q = f"{f(w)},{f(x)},{f(y)},{f(z)}],\"euler_deg\":[{f(r)},{f(p)},{f(h)}],\"sigma_deg\":[" \
             f"{f(sr)},{f(sp)},{f(sh)}"
     else:  # JSON has no NaN or infinity: null, as _num gives json.dumps
-        t = [f(float(v)) if math.isfinite(v) else "null" for v in vals]
+        t = [f(float(v)) if math.isfinite(v) else "null"
+             for v in (w, x, y, z, r, p, h, sr, sp, sh)]
         q = f"{t[0]},{t[1]},{t[2]},{t[3]}],\"euler_deg\":[{t[4]},{t[5]},{t[6]}]," \
             f"\"sigma_deg\":[{t[7]},{t[8]},{t[9]}"
     aligned = "true" if sol.heading_good(aligned_sd_rad) else "false"
@@ -203,8 +204,7 @@ class ZenohPublisher:
         return self._session
 
     def publish_attitude(self, sol: NavSolution, aligned_sd_rad: float = math.inf) -> None:
-        self._send(self._att, attitude_text(sol, aligned_sd_rad), "attitude_put_error",
-                   "attitude_sent")
+        self._send(self._att, attitude_text(sol, aligned_sd_rad), "attitude")
 
     def publish_status(self, status: Mapping[str, Any]) -> None:
         self._put(self._status, {**status, "schema": SCHEMA_VERSION}, "status")
@@ -218,16 +218,16 @@ class ZenohPublisher:
             self.counters.inc(f"{what}_unserialisable")
             _log.warning("zenoh: cannot serialise %s: %s", what, exc)
             return
-        self._send(pub, text, f"{what}_put_error", f"{what}_sent")
+        self._send(pub, text, what)
 
-    def _send(self, pub: Any, text: str, failed: str, sent: str) -> None:
+    def _send(self, pub: Any, text: str, what: str) -> None:
         try:
             pub.put(text)
         except zenoh.ZError as exc:
-            self.counters.inc(failed)
-            _log.warning("zenoh: put %s failed: %s", sent.rsplit("_", 1)[0], exc)
+            self.counters.inc(f"{what}_put_error")
+            _log.warning("zenoh: put %s failed: %s", what, exc)
             return
-        self.counters.inc(sent)
+        self.counters.inc(f"{what}_sent")
 
     def close(self) -> None:
         if self._session is not None:
