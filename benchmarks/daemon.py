@@ -23,6 +23,9 @@ no loss):
   --profile    runs the daemon under cProfile (writes PATH, prints the functions with the
                most own time); profiling slows it down, so take CPU and latency figures
                from a run without it.
+  host         benchmarks/host_jitter.py beside navd through the 1 kHz phase (5 ms sleeps):
+               how late the host woke a process that only sleeps, i.e. the tail no daemon
+               on it could beat (off with --no-jitter-probe).
   --py-spy     samples the running daemon with py-spy during the 1 kHz phase only (little
                overhead; needs py-spy installed and ptrace allowed).
 
@@ -239,6 +242,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--py-spy", metavar="PATH", dest="py_spy",
                     help="sample navd with py-spy (if installed) during the 1 kHz phase, "
                          "write the collapsed stacks to PATH, print a summary")
+    ap.add_argument("--no-jitter-probe", dest="jitter_probe", action="store_false",
+                    help="do not run benchmarks/host_jitter.py beside navd in the 1 kHz phase")
     a = ap.parse_args(argv)
     sweep = [float(x) for x in a.sweep.split(",") if x.strip()]
     # The receiver thread shares the GIL with the pacing loop; at the default 5 ms switch
@@ -275,9 +280,11 @@ def main(argv: list[str] | None = None) -> int:
         time.sleep(3.0)
         idle_pct = 100.0 * (cpu_s(proc.pid) - i0) / (time.monotonic() - w0)
         spy = start_py_spy(proc.pid, a.py_spy, a.duration) if a.py_spy else None
+        jitter = start_jitter_probe(a.duration) if a.jitter_probe else None
         (u0, s0), c0, th0 = cpu_split_s(proc.pid), cpu_s(proc.pid), thread_cpu_s(proc.pid)
         n_imu, wall = send_paced(sock, addr, frames[:n_main], 1.0, sent_at)
         (u1, s1), c1, th1 = cpu_split_s(proc.pid), cpu_s(proc.pid), thread_cpu_s(proc.pid)
+        host = read_jitter_probe(jitter) if jitter is not None else None
         by_thread = {k: round(100.0 * (v - th0.get(k, 0.0)) / wall, 1) for k, v in th1.items()}
         if spy is not None:
             spy.wait(60)
@@ -302,6 +309,7 @@ def main(argv: list[str] | None = None) -> int:
             "e2e_latency_p50_ms": round(pct(e2e, 50) / 1e3, 3),
             "e2e_latency_p99_ms": round(pct(e2e, 99) / 1e3, 3),
             "attitude_received": len(rx.got),
+            "host_wakeup": host,
         }
         results["main"] = main
         results["load_avg_after_main"] = os.getloadavg()[0]
@@ -358,6 +366,15 @@ def main(argv: list[str] | None = None) -> int:
          f"{m['navd_latency_p50_ms']:.3f} / {m['navd_latency_p99_ms']:.3f}", "p99 <= 2"),
         ("end-to-end IMU sendto -> ATTITUDE recv p50 / p99, ms",
          f"{m['e2e_latency_p50_ms']:.3f} / {m['e2e_latency_p99_ms']:.3f}", ""),
+    ]
+    host = m["host_wakeup"]
+    if host is not None:
+        rows.append((f"  host: a {host['period_ms']:g} ms sleep loop beside navd, wake-up late "
+                     "p99 / max, ms", f"{host['late_p99_ms']:.3f} / {host['late_max_ms']:.2f}",
+                     ""))
+        rows.append(("  host: its wake-ups > 2 ms late, %",
+                     f"{host['over_2ms_pct']:.2f}", ""))
+    rows += [
         ("IMU datagrams sent / consumed / lost",
          f"{m['imu_sent']} / {m['imu_consumed']} / {m['lost']}", "0 lost"),
         ("queue drops", f"{m['queue_drops']}", "0"),
@@ -383,6 +400,27 @@ def main(argv: list[str] | None = None) -> int:
     if a.json:
         Path(a.json).write_text(json.dumps(results, indent=2) + "\n")
     return 0
+
+
+def start_jitter_probe(seconds: float) -> subprocess.Popen[bytes]:
+    """benchmarks/host_jitter.py at a 5 ms period for ``seconds`` in its own process: the
+    host's wake-up tail during the same seconds navd is measured."""
+    return subprocess.Popen([sys.executable, str(ROOT / "benchmarks" / "host_jitter.py"),
+                             "--seconds", f"{seconds:g}", "--period-ms", "5", "--json", "-"],
+                            stdout=subprocess.PIPE)
+
+
+def read_jitter_probe(probe: subprocess.Popen[bytes]) -> dict[str, Any] | None:
+    try:
+        out, _ = probe.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        probe.kill()
+        probe.communicate()
+        return None
+    if probe.returncode != 0:
+        return None
+    res: dict[str, Any] = json.loads(out)
+    return res
 
 
 def start_py_spy(pid: int, path: str, duration_s: float) -> subprocess.Popen[bytes] | None:
