@@ -240,7 +240,8 @@ def test_batch_received_is_datagram_received_of_each(seed: int) -> None:
     """Reads of the hostile stream, with junk floods (muting) from another address and
     from the sender's own, and datagrams of another sender mixed in: ``batch_received``
     must leave the protocol as ``datagram_received`` of each datagram at the read's time
-    does (samples, counters, useful addresses, mutings, last peer, read pacing)."""
+    does (samples, counters, useful addresses, mutings, last peer, read pacing; only the
+    read's last datagram an edge of the pacer's rate window)."""
     rng = random.Random(seed)
     clock = [0]
     lane, lane_out = _protocol(clock)
@@ -268,8 +269,10 @@ def test_batch_received_is_datagram_received_of_each(seed: int) -> None:
             n0 = len(lane_out)
             lane.batch_received(batch.fill(read))
             blocks_used += len(lane_out) > n0
-        for d, addr in read:
-            one.datagram_received(d, addr)
+        for j, (d, addr) in enumerate(read):
+            # a read's samples share its last datagram's arrival: only that one may bound
+            # the read pacer's rate window (ReadPacer.note's edge)
+            one._datagram(d, addr, one.clock_us(), j == len(read) - 1)
         assert lane_out == one_out
     assert len(lane._free_blocks) == len(ImuBlock.pool(8))
     assert blocks_used > 100

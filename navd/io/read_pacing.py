@@ -64,8 +64,12 @@ class ReadPacer:
         self._lag = math.inf
         self._lag_prev = math.inf
 
-    def note(self, t_us: int, host_us: int) -> None:
-        """An IMU sample stamped ``t_us`` was read at host time ``host_us``."""
+    def note(self, t_us: int, host_us: int, edge: bool = True) -> None:
+        """An IMU sample stamped ``t_us`` was read at host time ``host_us``.  ``edge``: the
+        host time is this sample's own arrival (the last sample of a read); a sample read
+        earlier in the same read arrived up to a hold before it and must not bound the
+        rate window (an edge 17 ms off over 200 ms read the rate as 0.91-1.09, outside the
+        live tolerance, in a third of the windows)."""
         if t_us <= self.t_last:  # disorder, or a clock that started over: measure afresh
             if t_us < self.t_last:
                 self._t0 = -1
@@ -79,12 +83,15 @@ class ReadPacer:
             self._t0 = -1
             self._rate = 0.0
         if self._t0 < 0:
-            self._t0, self._h0 = t_us, host_us
-            self._lag = self._lag_prev = math.inf
+            if edge:
+                self._t0, self._h0 = t_us, host_us
+                self._lag = self._lag_prev = math.inf
             return
         lag = host_us - t_us
         if lag < self._lag:
             self._lag = lag
+        if not edge:
+            return
         dh = host_us - self._h0
         if dh >= _RATE_WINDOW_US:
             rate = (t_us - self._t0) / dh
@@ -94,16 +101,22 @@ class ReadPacer:
             self._t0, self._h0 = t_us, host_us
             self._lag_prev, self._lag = self._lag, math.inf
 
-    def note_run(self, t_us: npt.NDArray[np.int64], i: int, n: int, host_us: int) -> None:
+    def note_run(self, t_us: npt.NDArray[np.int64], i: int, n: int, host_us: int,
+                 last: bool = True) -> None:
         """:meth:`note` of ``t_us[i:i + n]`` (n >= 1), strictly increasing stamps read at one
         host time (a run of the batch lane), with three calls: after the first two, every
         further stamp of such a run only moves ``t_last`` and the least lag, which the last
-        one sets."""
-        self.note(int(t_us[i]), host_us)
-        if n > 1:
-            self.note(int(t_us[i + 1]), host_us)
-            if n > 2:
-                self.note(int(t_us[i + n - 1]), host_us)
+        one sets.  ``last``: the run ends the read, so ``host_us`` is its last sample's
+        arrival (that sample may bound the rate window; no other may)."""
+        if n == 1:
+            self.note(int(t_us[i]), host_us, last)
+            return
+        self.note(int(t_us[i]), host_us, False)
+        if n == 2:
+            self.note(int(t_us[i + 1]), host_us, last)
+            return
+        self.note(int(t_us[i + 1]), host_us, False)
+        self.note(int(t_us[i + n - 1]), host_us, last)
 
     def hold_us(self, host_us: int) -> int:
         """How long (host us) the socket may stay unread from ``host_us``: 0 to read on."""

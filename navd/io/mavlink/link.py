@@ -256,7 +256,7 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
                 or now - useful.get(addr, now - USEFUL_US) >= USEFUL_US
                 or addrs.count(addr) != n):
             for i in range(n):
-                self._datagram(batch.datagram(i), addrs[i], now)
+                self._datagram(batch.datagram(i), addrs[i], now, i == n - 1)
             return
         u8, offs = batch.u8, batch.offs
         pacer = self.pacer
@@ -271,7 +271,7 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
                 k = dec.feed_lane(u8, offs, i, n, now, block)
                 if k:
                     if pacer is not None:
-                        pacer.note_run(block.t_us, o, k, now)
+                        pacer.note_run(block.t_us, o, k, now, i + k == n)
                     took = True
                     i += k
                     if block.n == len(block.t_us):
@@ -281,7 +281,7 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
                 if block.n:  # the samples before this datagram go first
                     on_block(block)
                     block = None
-            self._datagram(batch.datagram(i), addr, now)
+            self._datagram(batch.datagram(i), addr, now, i == n - 1)
             i += 1
         if block is not None:
             if block.n:
@@ -305,8 +305,11 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
             return at(arrived_ns)
         return self.clock_us()
 
-    def _datagram(self, data: bytes, addr: tuple[Any, ...], now: int) -> None:
-        """One datagram received at ``now`` (us) from ``addr``: decoded, samples delivered."""
+    def _datagram(self, data: bytes, addr: tuple[Any, ...], now: int, edge: bool = True
+                  ) -> None:
+        """One datagram received at ``now`` (us) from ``addr``: decoded, samples delivered.
+        ``edge``: it is the read's last datagram (``now`` is its arrival: see
+        :meth:`ReadPacer.note`)."""
         self.last_peer = addr
         dec = self.decoder
         if dec is None:
@@ -332,10 +335,11 @@ class MavlinkUdpProtocol(_Delivering, asyncio.DatagramProtocol):
             useful[addr] = now
             pacer = self.pacer
             on_sample = self.on_sample
+            last = samples[-1]
             # what _deliver does, without the call (issue 18)
             for s in samples:
                 if pacer is not None and type(s) is ImuSample:
-                    pacer.note(s.t_us, now)
+                    pacer.note(s.t_us, now, edge and s is last)
                 if on_sample is not None:
                     on_sample(s)
 
