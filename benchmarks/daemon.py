@@ -24,8 +24,8 @@ no loss):
                most own time); profiling slows it down, so take CPU and latency figures
                from a run without it.
   host         benchmarks/host_jitter.py beside navd through the 1 kHz phase (5 ms sleeps):
-               how late the host woke a process that only sleeps, i.e. the tail no daemon
-               on it could beat (off with --no-jitter-probe).
+               how late the host woke a process that only sleeps: the host's own tail in
+               the same seconds (off with --no-jitter-probe).
   --py-spy     samples the running daemon with py-spy during the 1 kHz phase only (little
                overhead; needs py-spy installed and ptrace allowed).
 

@@ -8,9 +8,10 @@ daemon waiting on a socket or a timer also meets before it can run: the kernel's
 the run queue when other threads hold the cores, and on a virtual machine the time the
 hypervisor gives the virtual CPU to someone else (which the guest's run-queue statistics do
 not show).  ``benchmarks/daemon.py`` runs it beside navd during its 1 kHz phase, at a 5 ms
-period (~0.3 % of a core), so each daemon figure comes with the host's own tail of that run:
-when more than 1 % of these wake-ups are over 2 ms late, no process on the host could keep a
-p99 latency of 2 ms through that run.
+period (~0.3 % of a core), so each daemon figure comes with the host's own tail of that run.
+In 7 runs navd's latency p99 followed this probe's p99 (docs/results.md); a run in which
+more than 1 % of these wake-ups were over 2 ms late is one whose p99 says more about the
+host than about the daemon.
 
 ``--fifo`` asks for SCHED_FIFO (needs the privilege): what a real-time priority would buy.
 """
@@ -29,7 +30,7 @@ import numpy as np
 
 
 def lateness_ns(seconds: float, period_ns: int) -> list[int]:
-    """Wake-up lateness (ns, >= 0) of a loop sleeping to every multiple of ``period_ns`` for
+    """Wake-up lateness (ns) of a loop sleeping to every multiple of ``period_ns`` for
     ``seconds``."""
     late: list[int] = []
     now = time.monotonic_ns
@@ -39,7 +40,7 @@ def lateness_ns(seconds: float, period_ns: int) -> list[int]:
         d = due - now()
         if d > 0:
             time.sleep(d * 1e-9)
-        late.append(max(0, now() - due))
+        late.append(now() - due)  # time.sleep rounds its deadline up: never negative
         due += period_ns
         t = now()
         if t > due:  # a stall longer than a period: the next wake-up is the next multiple
