@@ -57,7 +57,8 @@ Covered: white IMU noise, constant and random-walk biases, white GNSS noise.  Ca
 Gauss-Markov biases, scale-factor errors, correlated GNSS position noise or sideslip are
 refused (their model is not in the recursion).
 
-    python benchmarks/info_floor.py [--cases car_clean,mr_clean,...] [--seeds 3] [--json PATH]
+    python benchmarks/info_floor.py [--cases car_clean,mr_clean,...] [--seeds 3] [--jobs 2]
+                                    [--json PATH]
 """
 
 from __future__ import annotations
@@ -65,6 +66,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import multiprocessing
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -307,28 +309,31 @@ def _pct5(x: Arr) -> float:
     return float(np.percentile(x, 5.0)) if x.size else math.nan
 
 
-def measure(case_name: str, seeds: int, heading0_rad: float) -> dict[str, Any]:
-    """Floors (both priors) and navd's errors on the same runs, pooled over seeds."""
+def one_run(args: tuple[str, int, float]) -> dict[str, Arr]:
+    """One seed of one case: navd's errors, sigma and aligned flags on its scoring instants,
+    and both floors' sigma (deg) on the same instants."""
+    case_name, seed, heading0_rad = args
     case = next(c for c in rb.CASES if c.name == case_name)
-    course = case.profile == "ground"
-    pooled: dict[str, list[npt.NDArray[Any]]] = {"navd": [], "navd_sd": [], "al": [], "sim": [],
-                                    "default": [], "t": []}
-    for seed in range(1, seeds + 1):
-        run = generate(load_scenario(case.scenario, dict(case.overrides)), seed=seed)
-        res = rb.score_sim(run, case.profile)
-        for name, prior in (("sim", sim_prior(run, heading0_rad)),
-                            ("default", default_prior(heading0_rad))):
-            t_f, sd = floor_sd(run, prior, course)
-            # navd's instants (its solution times since the first truth time) on the floor's
-            idx = np.clip(np.searchsorted(t_f, res.t_s - 1e-6), 0, t_f.size - 1)
-            pooled[name].append(sd[idx] / DEG)
-        pooled["navd"].append(res.err_deg)
-        pooled["navd_sd"].append(res.sd_deg)
-        pooled["al"].append(res.aligned)
-        pooled["t"].append(res.t_s)
+    run = generate(load_scenario(case.scenario, dict(case.overrides)), seed=seed)
+    res = rb.score_sim(run, case.profile)
+    out: dict[str, Arr] = {"navd": res.err_deg, "navd_sd": res.sd_deg,
+                           "al": res.aligned.astype(float), "t": res.t_s}
+    for name, prior in (("sim", sim_prior(run, heading0_rad)),
+                        ("default", default_prior(heading0_rad))):
+        t_f, sd = floor_sd(run, prior, case.profile == "ground")
+        # navd's instants (its solution times since the first truth time) on the floor's
+        idx = np.clip(np.searchsorted(t_f, res.t_s - 1e-6), 0, t_f.size - 1)
+        out[name] = sd[idx] / DEG
+    return out
+
+
+def measure(case_name: str, runs: list[dict[str, Arr]]) -> dict[str, Any]:
+    """Floors (both priors) and navd's figures on the same runs, pooled over seeds."""
+    pooled = {k: [r[k] for r in runs] for k in runs[0]}
+    seeds = len(runs)
     err = np.concatenate(pooled["navd"])
     nsd = np.concatenate(pooled["navd_sd"])
-    al = np.concatenate(pooled["al"])
+    al = np.concatenate(pooled["al"]) > 0.5
     t = np.concatenate(pooled["t"])
     late = t >= 60.0
     settled = t >= SETTLED_S
@@ -373,9 +378,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cases", default=",".join(DEFAULT_CASES))
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--heading0-deg", type=float, default=30.0)
+    ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     ap.add_argument("--json")
     a = ap.parse_args(argv)
-    rows = [measure(c, a.seeds, a.heading0_deg * DEG) for c in a.cases.split(",") if c]
+    cases = [c for c in a.cases.split(",") if c]
+    jobs = [(c, seed, a.heading0_deg * DEG) for c in cases for seed in range(1, a.seeds + 1)]
+    with multiprocessing.get_context("spawn").Pool(max(1, a.jobs)) as pool:
+        done = pool.map(one_run, jobs, chunksize=1)
+    rows = [measure(c, [d for (cj, _, _), d in zip(jobs, done, strict=True) if cj == c])
+            for c in cases]
     print(f"information floor vs navd (default config), {a.seeds} seeds per case; deg; floor = "
           "RMS of the best estimator's sigma on the same instants")
     print("| case | navd roll / pitch | floor roll / pitch, sim prior | floor, default prior | "
