@@ -48,20 +48,18 @@ def test_multirotor_attitude_nees_is_not_above_its_band() -> None:
     assert fig["nees_att"] < fig["nees_band"][1], fig
 
 
-@pytest.mark.parametrize("seed", [
-    5,
-    pytest.param(4, marks=pytest.mark.xfail(
-        strict=True, reason="seed 4's heading still stays 2.5-3.5 deg off at a 1.7-2.4 deg "
-        "sigma after its legs (mean (err/sigma)^2 2.15): not traced (docs/results.md)")),
-])
+@pytest.mark.parametrize("seed", [4, 5])
 def test_multirotor_heading_sigma_covers_its_error(seed: int) -> None:
     """GIVEN mr_clean seeds 4 and 5 (default config, multirotor profile: heading from the yaw
     bank, then from the accelerations of the legs),
     WHEN the heading's (error / sigma)^2 is averaged over the aligned instants after 60 s,
     THEN it is not above the 99 % band of a consistent filter's mean (1 dof, one independent
     sample per 2 s).  With the raw accelerometer noise in F the heading stayed 3.5-5 deg off
-    at a 1.6-2 deg sigma for 190 s (means 4.85 and 3.10, band ~1.4); now 2.15 and 0.85;
-    docs/results.md, "mr_clean: heading information from accelerometer noise"."""
+    at a 1.6-2 deg sigma for 190 s (means 4.85 and 3.10, band ~1.4); with the body-frame
+    low-pass of F's specific force 2.15 (seed 4, its sigma ~20 % below the information floor)
+    and 0.85; with kalman.multirotor_f's drag model and noise-energy correction below it
+    (docs/results.md, "mr_clean: heading information from accelerometer noise" and "The
+    information floor")."""
     from navd.core.chi2 import chi2_quantile
 
     case = next(c for c in rb.CASES if c.name == "mr_clean")

@@ -199,7 +199,9 @@ class Estimator:
         self._prev_inc[:] = 0.0
         self._dprev[:] = 0.0
         self._acc[:] = 0.0
+        # the low-passes and high-passes restart; the drag coefficient's regression stays
         self._v.f_lp[:6] = 0.0
+        self._v.f_lp[8:14] = 0.0
         for aid in self.aids:
             aid.reset()
         self.gyro_rest.reset()

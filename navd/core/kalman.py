@@ -27,30 +27,42 @@ from navd.core.strapdown import strapdown_step
 Arr = npt.NDArray[np.float64]
 N = 15
 
-# The specific force that F (the error dynamics) uses, on a multirotor: low-passed with a
-# time constant of F_TAU_S, s (navd.core.estimator sets it in f_lp[6]; 0: the raw mean).
-# The velocity error grows as f x phi with the TRUE specific force f; the filter only has the
-# measured one, f + n.  With the raw interval mean the accelerometer noise n is in F's
-# regressor as well as in the process noise it drives, and where the true f is smooth the
-# filter reads "the velocity innovations do not turn with the noise-driven f" as information
-# that its heading is right: in a hover (true horizontal f = 0) it gains ~|n T|^2 / S of
-# heading information per GNSS epoch that is not there, and holds the heading where it is
-# while its sigma shrinks.  At VRW 0.3 m/s/sqrt(s) (the consumer default, and the simulated
-# multirotor's IMU) that is ~0.13 m/s of noise "acceleration" per 0.2 s epoch, against
-# 0.2 m/s from a 1 m/s^2 leg (mr_clean seed 4: heading 4-5 deg off at a 1.6 deg sigma for
-# 190 s; docs/results.md, issue 14).  A multirotor's body-frame specific force is its
-# thrust along body z plus a little drag: smooth, and its horizontal accelerations appear
-# through the attitude.  So f is low-passed in the body frame (its noise falls to
-# VRW / sqrt(2 F_TAU_S)) and rotated with the present attitude (leaning into an acceleration
-# or yawing is not delayed); a change larger than the noise allows (F_SNAP_SD sigmas between
-# an F_FAST_S low-pass and the slow one, ~3 m/s^2 at VRW 0.3: a hard climb or stop) is
-# followed at once.  Cars and fixed wings keep the raw mean: their body-frame specific force
-# changes quickly and for real (braking, bumps, gusts, pull-ups), and low-passing it cost
-# car480 0.05 deg of pitch RMS and the X8 replayed as a ground vehicle 2 deg of pitch
-# against ATT (docs/results.md).  The mechanization is never filtered.
+# The specific force that F (the error dynamics) uses, on a multirotor (multirotor_f; the
+# low-pass time constant F_TAU_S, s, is set by navd.core.estimator in f_lp[6]; 0: the raw
+# mean).  The velocity error grows as f x phi with the TRUE specific force; the filter only
+# has the measured one, and every bit of horizontal f in F is heading information it claims,
+# |f_h|^2 / VRW^2 per second, where the data holds the true f_h's share.  With the raw
+# interval mean the noise's energy is claimed too: in a hover (true horizontal f = 0) the
+# filter reads "the velocity innovations do not turn with the noise" as "the heading is
+# right" and holds it while its sigma shrinks (mr_clean seed 4: 4-5 deg off at a 1.6 deg
+# sigma; docs/results.md, issue 14).  A multirotor's body specific force is its thrust along
+# body z, smooth, plus the rotor drag -kd v_b along body x/y, which follows the velocity: so
+# the body vector plus kd v_b is low-passed (noise VRW / sqrt(2 F_TAU_S) per axis) and kd v_b
+# taken off again, with kd learnt in flight (a complementary filter: the drag is not
+# delayed, and a wrong kd only leaves the lag of what it does not explain), then rotated with
+# the present attitude (a lean into an acceleration is not delayed), and the noise's energy
+# is subtracted from the horizontal part's.  A body low-pass without the drag model lagged
+# the drag by ~1 s after every change of speed and, with the noise's energy, claimed 1.5-2x
+# the heading information the data holds (sigma 20 % below the information floor,
+# benchmarks/info_floor.py); a navigation-frame low-pass was honest but lagged the legs and
+# lost accuracy (docs/results.md).  A change larger than the noise allows (F_SNAP_SD sigmas
+# between an F_FAST_S low-pass and the slow one, ~3 m/s^2 at VRW 0.3: a hard climb or stop)
+# is followed at once.  Cars and fixed wings keep the raw mean: their specific force changes
+# quickly and for real (braking, bumps, gusts, pull-ups), and low-passing it cost car480
+# 0.05 deg of pitch RMS and the X8 replayed as a ground vehicle 2 deg of pitch against ATT
+# (docs/results.md).  The mechanization is never filtered.
 F_TAU_S = 1.0
 F_FAST_S = 0.1
 F_SNAP_SD = 4.0
+# the rotor-drag coefficient's regression (multirotor_f): high-pass, forgetting, its prior
+# (1/s; the quads of log171 and f450_glitch learn 0.19 and 0.13-0.20, the simulator's
+# multirotors fly 0.3-0.35) and its range (1/s)
+DRAG_HP_S = 2.0
+DRAG_FORGET_S = 120.0
+DRAG_PRIOR_PER_S = 0.2
+DRAG_PRIOR_SD = 0.15
+DRAG_MAX_PER_S = 1.0
+FLP_N = 16
 
 
 @jit
@@ -219,6 +231,89 @@ def inject(x: Arr, mat_nb: Arr, vel_n: Arr, pos: Arr, bg: Arr, ba: Arr, work: Ar
 
 
 @jit
+def multirotor_f(f_lp: Arr, mat_nb: Arr, vel_n: Arr, fx: float, fy: float, fz: float,
+                 T: float, vrw2: float, f_n: Arr) -> None:
+    """F's NED specific force on a multirotor (see F_TAU_S) into ``f_n`` (3,), m/s^2.
+
+    ``fx, fy, fz``: this covariance interval's mean body specific force, m/s^2 (bias
+    compensated); ``T`` its length, s; ``vrw2`` the configured VRW^2 (m/s)^2/s.  ``f_lp``
+    (FLP_N,): [0:3] slow and [3:6] fast body low-passes of f + kd v_b (x, y) (all zero:
+    none yet); [6] tau, s; [7] kd, the rotor-drag coefficient, 1/s; [8:10] and [10:12]
+    the high-pass states of body f and of the body velocity (x, y); [12:14] the body
+    velocity at the end of the previous interval, m/s; [14] sum of hp(f) hp(v), [15] sum of
+    hp(v)^2 (forgetting DRAG_FORGET_S).
+
+    The body x/y specific force of a multirotor is its rotor drag, -kd v_b (thrust is along
+    body z): it follows the velocity at once, so it is carried past the low-pass by the
+    model (low-pass of f + kd v_b, then - kd v_b: a complementary filter; a wrong kd only
+    leaves the lag of the part it does not explain, constant wind and bias pass through).
+    kd is learnt here from the high-passed body f against the high-passed body velocity of
+    the interval before (this interval's accelerometer noise is in its own velocity), from
+    the prior DRAG_PRIOR_PER_S.  Then the horizontal part is scaled by
+    sqrt(1 - n^2 / |f_h|^2), n^2 the low-pass's noise over two axes, so that |f_h|^2 is, on
+    average, the signal's and not the noise's (in a hover ~1/e of the noise's energy
+    remains, against all of it unscaled).
+    """
+    tau = f_lp[6]
+    kd = f_lp[7]
+    vbx = mat_nb[0, 0] * vel_n[0] + mat_nb[1, 0] * vel_n[1] + mat_nb[2, 0] * vel_n[2]
+    vby = mat_nb[0, 1] * vel_n[0] + mat_nb[1, 1] * vel_n[1] + mat_nb[2, 1] * vel_n[2]
+    # the drag regression
+    c = T / (DRAG_HP_S + T)
+    hfx = fx - f_lp[8]
+    hfy = fy - f_lp[9]
+    f_lp[8] += c * hfx
+    f_lp[9] += c * hfy
+    hvx = f_lp[12] - f_lp[10]
+    hvy = f_lp[13] - f_lp[11]
+    f_lp[10] += c * hvx
+    f_lp[11] += c * hvy
+    f_lp[12] = vbx
+    f_lp[13] = vby
+    lam = math.exp(-T / DRAG_FORGET_S)
+    f_lp[14] = lam * f_lp[14] + hfx * hvx + hfy * hvy
+    f_lp[15] = lam * f_lp[15] + hvx * hvx + hvy * hvy
+    # least squares with the prior DRAG_PRIOR_PER_S +- DRAG_PRIOR_SD as DRAG_PRIOR_SD's worth
+    # of hp(v)^2 (the per-interval noise of hp(f) is VRW^2 / T per axis)
+    w = vrw2 / (T * DRAG_PRIOR_SD * DRAG_PRIOR_SD)
+    kd = (w * DRAG_PRIOR_PER_S - f_lp[14]) / (w + f_lp[15])
+    kd = min(max(kd, 0.0), DRAG_MAX_PER_S)
+    f_lp[7] = kd
+    fx += kd * vbx
+    fy += kd * vby
+    if f_lp[0] == 0.0 and f_lp[1] == 0.0 and f_lp[2] == 0.0:
+        f_lp[0] = f_lp[3] = fx
+        f_lp[1] = f_lp[4] = fy
+        f_lp[2] = f_lp[5] = fz
+    else:
+        a = T / (tau + T)
+        b = T / (F_FAST_S + T)
+        d2 = 0.0
+        for i in range(3):
+            fi = fx if i == 0 else (fy if i == 1 else fz)
+            f_lp[i] += a * (fi - f_lp[i])
+            f_lp[3 + i] += b * (fi - f_lp[3 + i])
+            d2 += (f_lp[3 + i] - f_lp[i]) ** 2
+        # per axis, the two low-passes' noise variances are VRW^2 / (2 tau) each
+        if d2 > F_SNAP_SD * F_SNAP_SD * vrw2 * (0.5 / F_FAST_S + 0.5 / tau):
+            for i in range(3):
+                f_lp[i] = f_lp[3 + i]
+    bx = f_lp[0] - kd * vbx
+    by = f_lp[1] - kd * vby
+    bz = f_lp[2]
+    for i in range(3):
+        f_n[i] = mat_nb[i, 0] * bx + mat_nb[i, 1] * by + mat_nb[i, 2] * bz
+    # the low-pass's noise (VRW^2 / (2 tau) per axis, two horizontal axes) adds energy
+    # (heading information that is not there): subtract it from |f_h|^2
+    h2 = f_n[0] * f_n[0] + f_n[1] * f_n[1]
+    k = 0.0
+    if h2 > vrw2 / tau:
+        k = math.sqrt(1.0 - vrw2 / (tau * h2))
+    f_n[0] *= k
+    f_n[1] *= k
+
+
+@jit
 def imu_step(mat_nb: Arr, vel_n: Arr, pos: Arr, dov: Arr, bg: Arr, ba: Arr,
              inc: Arr, prev_inc: Arr, dprev: Arr, acc: Arr,
              dtx: float, dty: float, dtz: float, dvx: float, dvy: float, dvz: float,
@@ -283,34 +378,13 @@ def imu_step(mat_nb: Arr, vel_n: Arr, pos: Arr, dov: Arr, bg: Arr, ba: Arr,
     fx = acc[0] / T
     fy = acc[1] / T
     fz = acc[2] / T
-    # F's specific force (see F_TAU_S): the interval's mean, on a multirotor (f_lp[6] > 0)
-    # low-passed in the body frame (f_lp[0:3] slow, f_lp[3:6] fast; all zero: none yet,
-    # start from this interval's), then rotated with the present attitude
-    tau = f_lp[6]
-    if tau > 0.0:
-        if f_lp[0] == 0.0 and f_lp[1] == 0.0 and f_lp[2] == 0.0:
-            f_lp[0] = f_lp[3] = fx
-            f_lp[1] = f_lp[4] = fy
-            f_lp[2] = f_lp[5] = fz
-        else:
-            a = T / (tau + T)
-            b = T / (F_FAST_S + T)
-            d2 = 0.0
-            for i in range(3):
-                fi = fx if i == 0 else (fy if i == 1 else fz)
-                f_lp[i] += a * (fi - f_lp[i])
-                f_lp[3 + i] += b * (fi - f_lp[3 + i])
-                d2 += (f_lp[3 + i] - f_lp[i]) ** 2
-            # per axis, the two low-passes' noise variances are VRW^2 / (2 tau) each
-            vrw2 = max(q[3], q[4], q[5])
-            if d2 > F_SNAP_SD * F_SNAP_SD * vrw2 * (0.5 / F_FAST_S + 0.5 / tau):
-                for i in range(3):
-                    f_lp[i] = f_lp[3 + i]
-        fx = f_lp[0]
-        fy = f_lp[1]
-        fz = f_lp[2]
-    for i in range(3):
-        f_n[i] = mat_nb[i, 0] * fx + mat_nb[i, 1] * fy + mat_nb[i, 2] * fz
+    # F's specific force (see F_TAU_S): the interval's mean; on a multirotor (f_lp[6] > 0)
+    # the model of multirotor_f
+    if f_lp[6] > 0.0:
+        multirotor_f(f_lp, mat_nb, vel_n, fx, fy, fz, T, max(q[3], q[4], q[5]), f_n)
+    else:
+        for i in range(3):
+            f_n[i] = mat_nb[i, 0] * fx + mat_nb[i, 1] * fy + mat_nb[i, 2] * fz
     build_f(F, mat_nb, vel_n, pos, f_n)
     propagate_cov(P, F, q, T, A, B)
     acc[0] = 0.0
