@@ -75,3 +75,19 @@ def test_a_hover_claims_less_than_the_low_passed_noise() -> None:
     ratio = float(np.mean(f_h[1000:] ** 2)) / float(np.mean(plain[1000:] ** 2))
     assert ratio < 0.5, ratio
     assert ratio > 0.1, ratio  # the scaling is no blanket zero either
+
+
+def test_the_estimator_reports_the_learnt_drag_coefficient() -> None:
+    """mr_clean (the simulator's multirotor, drag 0.35 /s) through the default config on the
+    multirotor profile: status drag_per_s is the learnt coefficient; None on a car."""
+    from firmware_sim import generate, load_scenario
+    from navd.config import load_config
+    from navd.pipeline import build_estimator
+
+    run = generate(load_scenario("multirotor", {"duration_s": 120.0}), seed=1, progress=False)
+    est = build_estimator(load_config(None, ["filter.profile=multirotor"]))
+    for s in run.samples():
+        est.push(s)
+    drag = est.status()["drag_per_s"]
+    assert isinstance(drag, float) and 0.25 < drag < 0.4, drag
+    assert build_estimator(load_config(None, [])).status()["drag_per_s"] is None

@@ -712,6 +712,10 @@ class Estimator:
             "gyro_bias_dph": [float(b) * 180.0 / math.pi * 3600.0 for b in self.bias_g],
             "accel_bias_mg": [float(b) / 9.80665e-3 for b in self.bias_a],
             "dov_arcsec": [float(self.dov[0]) * 206264.806, float(self.dov[1]) * 206264.806],
+            # the rotor-drag coefficient F's multirotor model has learnt (kalman.multirotor_f),
+            # 1/s; None on the other profiles
+            "drag_per_s": (round(float(self._v.f_lp[7]), 3) if self._v.f_lp[6] > 0.0
+                           else None),
         })
         return out
 
