@@ -5,7 +5,7 @@ defaults plus the scenario's natural ``filter.profile`` (ground for cars, multir
 multirotor scenario, fixed_wing for the X8), never the simulated IMU's own figures.  Simulated
 cases are overrides of the built-in scenarios (car480: 480 s at 10-24 m/s; multirotor: 240 s;
 drive_long: 1200 s with stops and outages), full length: nothing is shortened, since the
-default settings (19 cases x 5 seeds + 4 logs) take about 2 minutes on 2 cores (numba's
+default settings (20 cases x 5 seeds + 4 logs) take about 2 minutes on 2 cores (numba's
 compiled code cached; the first run ever compiles for about a minute more).
 
 Per case (pooled over seeds; instants every 0.1 s of sensor time after navigation starts):
