@@ -273,8 +273,9 @@ def multirotor_f(f_lp: Arr, mat_nb: Arr, vel_n: Arr, fx: float, fy: float, fz: f
     lam = math.exp(-T / DRAG_FORGET_S)
     f_lp[14] = lam * f_lp[14] + hfx * hvx + hfy * hvy
     f_lp[15] = lam * f_lp[15] + hvx * hvx + hvy * hvy
-    # least squares with the prior DRAG_PRIOR_PER_S +- DRAG_PRIOR_SD as DRAG_PRIOR_SD's worth
-    # of hp(v)^2 (the per-interval noise of hp(f) is VRW^2 / T per axis)
+    # least squares from the prior DRAG_PRIOR_PER_S +- DRAG_PRIOR_SD, whose information in
+    # units of sum hp(v)^2 is w (hp(f)'s noise per interval being VRW^2 / T per axis); the
+    # sums forget, the prior does not: a long hover returns kd to it
     w = vrw2 / (T * DRAG_PRIOR_SD * DRAG_PRIOR_SD)
     kd = (w * DRAG_PRIOR_PER_S - f_lp[14]) / (w + f_lp[15])
     kd = min(max(kd, 0.0), DRAG_MAX_PER_S)

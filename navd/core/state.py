@@ -55,7 +55,7 @@ DPREV = HIST + HIST_LEN * HIST_W  # previous change of the angle increment (3,) 
 # F's multirotor specific-force model (kalman.multirotor_f): low-passes, time constant
 # (s; 0: off), rotor-drag coefficient and its regression (kalman.FLP_N)
 FLP = DPREV + 3
-SIZE = FLP + 16
+SIZE = FLP + kalman.FLP_N
 
 
 class StateViews:
@@ -84,7 +84,7 @@ class StateViews:
         self.R = buf[R:R + 16].reshape(4, 4)
         self.M = buf[M3:M3 + 9].reshape(3, 3)
         self.hist = buf[HIST:HIST + HIST_LEN * HIST_W].reshape(HIST_LEN, HIST_W)
-        self.f_lp = buf[FLP:FLP + 16]
+        self.f_lp = buf[FLP:FLP + kalman.FLP_N]
 
 
 @jit
@@ -98,7 +98,7 @@ def imu_step(buf: Arr, t_us: float, dtx: float, dty: float, dtz: float, dvx: flo
         dvz, dt, coning,
         cov_interval, buf[P:P + 225].reshape((15, 15)), buf[F:F + 225].reshape((15, 15)),
         buf[Q:Q + 15], buf[A:A + 225].reshape((15, 15)), buf[B:B + 225].reshape((15, 15)),
-        buf[WORK:WORK + 72].reshape((8, 3, 3)), buf[RATE:RATE + 3], buf[FLP:FLP + 16])
+        buf[WORK:WORK + 72].reshape((8, 3, 3)), buf[RATE:RATE + 3], buf[FLP:FLP + kalman.FLP_N])
     i = int(buf[HIST_I]) + 1
     if i >= HIST_LEN:
         i = 0
