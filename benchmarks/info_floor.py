@@ -151,61 +151,23 @@ def check_covered(run: SimRun) -> None:
         raise ValueError(f"{run.scenario.name}: not covered by the floor: {', '.join(why)}")
 
 
-@dataclass(frozen=True)
-class Noise:
-    """White-noise densities and GNSS 1-sigma of the recursion (SI: rad/sqrt(s),
-    m/s/sqrt(s), rad/s/sqrt(s), m/s^2/sqrt(s), m, m/s)."""
-
-    arw: float
-    vrw: float
-    gyro_bias_rw: float
-    accel_bias_rw: float
-    pos_h: float
-    pos_v: float
-    vel_h: float
-    vel_v: float
-
-
-def sim_noise(run: SimRun) -> Noise:
-    """What the simulator applied (the floor's model)."""
-    imu, g = run.scenario.imu, run.scenario.gnss
-    return Noise(imu.arw_rad_per_sqrt_s, imu.vrw_mps_per_sqrt_s,
-                 imu.gyro_bias_rw_rps_per_sqrt_s, imu.accel_bias_rw_mps2_per_sqrt_s,
-                 g.pos_sigma_h_m, g.pos_sigma_v_m, g.vel_sigma_h_mps * g.vel_noise_scale,
-                 g.vel_sigma_v_mps * g.vel_noise_scale)
-
-
-def config_noise(run: SimRun) -> Noise:
-    """What the default config assumes, with the receiver's reported accuracies (median)
-    as navd reads them (the horizontal velocity accuracy for the vertical too)."""
-    imu = _default_config().imu
-    g = run.gnss
-    vel = float(np.median(g["vel_acc_mps"]))
-    return Noise(imu.gyro_arw, imu.accel_vrw, imu.gyro_bias_rw, imu.accel_bias_rw,
-                 float(np.median(g["h_acc_m"])), float(np.median(g["v_acc_m"])), vel, vel)
-
-
-def floor_sd(run: SimRun, prior: Prior, course: bool,
-             noise: Noise | None = None) -> tuple[Arr, Arr]:
-    """The floor's roll/pitch/yaw 1-sigma along ``run``.
+def floor_sd(run: SimRun, prior: Prior, course: bool) -> tuple[Arr, Arr]:
+    """The floor's roll/pitch/yaw 1-sigma along ``run``, with the simulator's own noise.
 
     Returns ``t_s`` (K,) the scoring instants, s from the first truth time, and ``sd``
     (K, 3) roll, pitch, yaw 1-sigma, rad.  ``course``: apply the heading = course
-    constraint (ground vehicles with no sideslip).  ``noise``: the model (default: the
-    simulator's own, which makes it the floor; another model gives the covariance a filter
-    with that model would have along the truth, with the exact specific force).
+    constraint (ground vehicles with no sideslip).
     """
     check_covered(run)
-    nz = noise if noise is not None else sim_noise(run)
+    imu, gs = run.scenario.imu, run.scenario.gnss
     dt = run.imu_dt_s
     n_dec = max(1, round(PROP_DT_S / dt))
     n_score = max(1, round(SCORE_DT_S / dt))
-    T = n_dec * dt
     q = np.zeros(N_STATES)
-    q[I_ATT:I_ATT + 3] = nz.arw**2
-    q[I_VEL:I_VEL + 3] = nz.vrw**2
-    q[I_BG:I_BG + 3] = nz.gyro_bias_rw**2
-    q[I_BA:I_BA + 3] = nz.accel_bias_rw**2
+    q[I_ATT:I_ATT + 3] = imu.arw_rad_per_sqrt_s**2
+    q[I_VEL:I_VEL + 3] = imu.vrw_mps_per_sqrt_s**2
+    q[I_BG:I_BG + 3] = imu.gyro_bias_rw_rps_per_sqrt_s**2
+    q[I_BA:I_BA + 3] = imu.accel_bias_rw_mps2_per_sqrt_s**2
     lat0, h0 = float(run.truth_pos[0, 0]), float(run.truth_pos[0, 2])
     rm0, rn0 = radii(lat0)
     P = np.zeros((N_STATES, N_STATES))
@@ -227,14 +189,15 @@ def floor_sd(run: SimRun, prior: Prior, course: bool,
     f_nav = np.einsum("kij,kj->ki", mats[:-1], dvel_true)        # (N, 3) NED, m/s^2
     n_imu = dvel_true.shape[0]
     gnss_at: dict[int, int] = {int(j): m for m, j in enumerate(run.gnss_truth_idx)}
-    r_gnss = np.square([nz.pos_h, nz.pos_h, nz.pos_v, nz.vel_h, nz.vel_h, nz.vel_v])
+    vh, vv = gs.vel_sigma_h_mps * gs.vel_noise_scale, gs.vel_sigma_v_mps * gs.vel_noise_scale
+    r_gnss = np.square([gs.pos_sigma_h_m, gs.pos_sigma_h_m, gs.pos_sigma_v_m, vh, vh, vv])
     last_epoch = 0
     t_out: list[float] = []
     sd_out: list[tuple[float, float, float]] = []
     k = 0
     while k <= n_imu:
         if k in gnss_at:
-            _gnss_update(P, run, k, last_epoch, r_gnss, course, nz.arw, M)
+            _gnss_update(P, run, k, last_epoch, r_gnss, course, imu.arw_rad_per_sqrt_s, M)
             last_epoch = k
         if k % n_score == 0:
             euler_error_map(mats[k], M)
@@ -246,7 +209,7 @@ def floor_sd(run: SimRun, prior: Prior, course: bool,
         step = min(n_dec, n_imu - k)
         f_n[:] = f_nav[k:k + step].mean(axis=0)
         build_f(F, mats[k], vels[k], poss[k], f_n)
-        propagate_cov(P, F, q, step * dt if step != n_dec else T, A, B)
+        propagate_cov(P, F, q, step * dt, A, B)
         k += step
     return np.array(t_out), np.array(sd_out)
 
