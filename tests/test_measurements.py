@@ -554,3 +554,50 @@ def test_gated_update_singular_measurement_covariance() -> None:
     assert abs(nis - z @ np.linalg.solve(S, z)) < 1e-9
     np.testing.assert_allclose(x_got / SCALE, (K @ z) / SCALE, atol=1e-9)
     np.testing.assert_allclose(P_got, P - K @ S @ K.T, atol=1e-12)
+
+
+def test_a_heading_correction_turns_the_down_mismatch_with_it() -> None:
+    """GIVEN a true attitude and an estimate 2 deg tilted and 40 deg off in heading,
+    WHEN the estimate is turned by a heading correction d about down,
+    THEN the mismatch of the estimated down direction, z - C^ C^T z (the filter's tilt
+    through f x phi), turns by exactly d in navigation coordinates and stays fixed in the
+    body: the frame fact behind navd.core.state.turn_tilt_cov."""
+    z = np.array([0.0, 0.0, 1.0])
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        c_true = euler_mat(*rng.uniform(-0.5, 0.5, 2), rng.uniform(-math.pi, math.pi))
+        tilt = np.append(rng.normal(size=2), 0.0)
+        tilt *= 2 * math.pi / 180 / np.linalg.norm(tilt)
+        c_hat = euler_mat(0.0, 0.0, 40 * math.pi / 180) @ so3_exp(tilt) @ c_true
+        d = rng.uniform(-1.0, 1.0)
+        rz = euler_mat(0.0, 0.0, d)
+        m = z - c_hat @ c_true.T @ z
+        m2 = z - rz @ c_hat @ c_true.T @ z
+        np.testing.assert_allclose(m2, rz @ m, atol=1e-15)
+        np.testing.assert_allclose(c_hat.T @ m, (rz @ c_hat).T @ m2, atol=1e-15)
+
+
+def test_injection_turns_the_tilt_covariance_by_the_heading_correction() -> None:
+    """GIVEN a random covariance and an error state whose heading part is d,
+    WHEN the estimator's inject folds it in,
+    THEN P's tilt rows and columns are turned by d about down (P <- G P G^T) and nothing
+    else changes; with G = I (the common error-state reset, navd before 2026-11-27) the
+    tilt / accelerometer-bias pairing stays in the old frame and later heading corrections
+    separate tilt from bias with no information (tests/test_bench_info_floor.py)."""
+    from navd.core import state as st
+
+    rng = np.random.default_rng(3)
+    for d in (0.0, 0.3, -1.2):
+        buf = np.zeros(st.SIZE)
+        buf[st.MAT:st.MAT + 9] = np.eye(3).ravel()
+        buf[st.HIST_I] = -1.0
+        a = rng.normal(size=(15, 15))
+        p0 = a @ a.T + 15 * np.eye(15)
+        buf[st.P:st.P + 225] = p0.ravel()
+        buf[st.X:st.X + 3] = [0.01, -0.02, d]
+        st.inject(buf)
+        g = np.eye(15)
+        g[0:2, 0:2] = [[math.cos(d), -math.sin(d)], [math.sin(d), math.cos(d)]]
+        np.testing.assert_allclose(buf[st.P:st.P + 225].reshape(15, 15), g @ p0 @ g.T,
+                                   rtol=0, atol=1e-12)
+        assert not buf[st.X:st.X + 15].any()

@@ -171,7 +171,8 @@ class GnssAiding:
                                            self.hold_mask)
         # how far this epoch's updates turned the yaw (alignment integrity without a course)
         d_yaw = math.atan2(m_nb[1, 0], m_nb[0, 0]) - yaw0
-        self.course.align.note_yaw_moved((d_yaw + math.pi) % (2.0 * math.pi) - math.pi)
+        self.course.align.note_yaw_moved(est, (d_yaw + math.pi) % (2.0 * math.pi)
+                                         - math.pi)
         self.recovery.after_epoch(est, g.t_us, h_sd, v_sd, s_sd, math.isfinite(g.vel_d))
         self.adaptive.after_epoch(est, math.isfinite(g.vel_d), s_sd)
         return True

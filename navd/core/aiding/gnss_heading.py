@@ -362,6 +362,8 @@ class CourseHeading:
         exp_into(e, 0.0, 0.0, -d)
         mul3_into(t, e, est.mat_nb)
         est.mat_nb[:, :] = t
+        # the tilt error turns with the attitude (navd.core.state.turn_tilt_cov)
+        st.turn_tilt_cov(est.buf, -d)
         P = est.P
         P[2, :] = 0.0
         P[:, 2] = 0.0

@@ -140,9 +140,25 @@ class HeadingAlignment:
         """The yaw came from config and is flagged aligned at once (the user says so)."""
         self._s[_ORIGIN] = _COURSE
 
-    def note_yaw_moved(self, d_yaw: float) -> None:
-        """The epoch's GNSS updates turned the yaw by ``d_yaw`` rad."""
-        self._s[_MOVED] += abs(d_yaw)
+    def note_yaw_moved(self, est: Estimator, d_yaw: float) -> None:
+        """The epoch's GNSS updates turned the yaw by ``d_yaw`` rad.
+
+        A flagged yaw that one epoch turns by more than three ``[init] aligned_sd`` was that
+        far off while flagged: the flag drops and waits for a new run of consistent checks
+        (``heading_unflagged_jump``).  After a velocity lock-out's reset widened the heading
+        sigma to 10 deg, the next fixes turned a flagged yaw by 15 deg within 0.3 s, and
+        the mean-of-checks watch dropped the flag only 0.4 s later (car480 at 2-3.4 m/s with
+        5x the accelerometer noise, seed 5, 71 s, tilt 12 deg off).  With a yaw bank the
+        bank owns the flag."""
+        s = self._s
+        s[_MOVED] += abs(d_yaw)
+        if (est.heading_aligned and est.yaw_bank is None
+                and abs(d_yaw) > 3.0 * self.cfg.init.aligned_sd):
+            est.heading_aligned = False
+            est.counters["heading_unflagged_jump"] += 1
+            s[_OK_N] = 0.0
+            s[_OK_T0] = -1.0
+            s[_WIN_N] = 0.0
 
     def check_course(self, est: Estimator, g: GnssSample, s_sd: float, slip_gain: float,
                      slip_gain_var: float, sd_beta: float) -> None:
