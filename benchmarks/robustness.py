@@ -5,8 +5,9 @@ defaults plus the scenario's natural ``filter.profile`` (ground for cars, multir
 multirotor scenario, fixed_wing for the X8), never the simulated IMU's own figures.  Simulated
 cases are overrides of the built-in scenarios (car480: 480 s at 10-24 m/s; multirotor: 240 s;
 drive_long: 1200 s with stops and outages), full length: nothing is shortened, since the
-default settings (20 cases x 5 seeds + 4 logs) take about 2 minutes on 2 cores (numba's
-compiled code cached; the first run ever compiles for about a minute more).
+default settings (20 cases x 5 seeds, the three multirotor cases x 20, + 4 logs) take about
+3 minutes on 2 cores (numba's compiled code cached; the first run ever compiles for about a
+minute more).
 
 Per case (pooled over seeds; instants every 0.1 s of sensor time after navigation starts):
 
@@ -121,6 +122,13 @@ class Case:
     what: str
     target: str = "integrity"
     overrides: Mapping[str, Any] = field(default_factory=dict)
+    min_seeds: int = 0  # the case runs seeds 1..max(--seeds, min_seeds)
+
+
+# The multirotor cases run at least this many seeds: their exceedances gather in a few seeds
+# (gyro_1_mr heading beyond 3 sigma: 0.0 % over seeds 1-5, 3.1 % over 36; accel_20mg_mr roll:
+# seed 4 alone 7-9 %), so five seeds said "0.0 %" of a filter that is not (docs/results.md).
+MR_SEEDS = 20
 
 
 def _car_speeds(lo: float, hi: float) -> list[dict[str, float]]:
@@ -133,7 +141,8 @@ def _car_speeds(lo: float, hi: float) -> list[dict[str, float]]:
 
 CASES: tuple[Case, ...] = (
     Case("car_clean", "car480", "ground", "car480 as shipped (sideslip 0)", "clean"),
-    Case("mr_clean", "multirotor", "multirotor", "multirotor as shipped", "clean"),
+    Case("mr_clean", "multirotor", "multirotor", "multirotor as shipped", "clean",
+         min_seeds=MR_SEEDS),
     Case("drive_long", "drive_long", "ground",
          "drive_long as shipped: stops, crawling, 5 Hz GNSS, two outages"),
     Case("gyro_0.3", "car480", "ground", "gyro offsets +0.3/-0.3/+0.3 deg/s (uncalibrated)",
@@ -142,12 +151,13 @@ CASES: tuple[Case, ...] = (
          "gyro", {"imu.gyro_offset_rps": [1.0 * DEG, -0.7 * DEG, 0.5 * DEG]}),
     Case("gyro_1_mr", "multirotor", "multirotor",
          "multirotor, gyro offsets +1/-0.7/+0.5 deg/s; 15 s at rest first", "gyro",
-         {"imu.gyro_offset_rps": [1.0 * DEG, -0.7 * DEG, 0.5 * DEG]}),
+         {"imu.gyro_offset_rps": [1.0 * DEG, -0.7 * DEG, 0.5 * DEG]}, min_seeds=MR_SEEDS),
     Case("accel_20mg", "car480", "ground", "accel offsets +20/-20/+20 mg (uncalibrated)",
          overrides={"imu.accel_offset_mps2": [20 * MG, -20 * MG, 20 * MG]}),
     Case("accel_20mg_mr", "multirotor", "multirotor",
          "multirotor, accel offsets +20/-20/+20 mg (uncalibrated)",
-         overrides={"imu.accel_offset_mps2": [20 * MG, -20 * MG, 20 * MG]}),
+         overrides={"imu.accel_offset_mps2": [20 * MG, -20 * MG, 20 * MG]},
+         min_seeds=MR_SEEDS),
     Case("noise_x3", "car480", "ground",
          "IMU ARW and VRW 3x the config's (config understates the noise)",
          overrides={"imu.arw_rad_per_sqrt_s": 3 * 0.24 * DEG / 60.0,
@@ -590,7 +600,8 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--json", help="write one record per case to this file")
     ap.add_argument("--cases", help="comma-separated case names (default: all, with real logs)")
-    ap.add_argument("--seeds", type=int, default=5, help="Monte Carlo seeds 1..N (default 5)")
+    ap.add_argument("--seeds", type=int, default=5,
+                    help=f"Monte Carlo seeds 1..N (default 5; multirotor cases >= {MR_SEEDS})")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     ap.add_argument("--list", action="store_true", help="list the cases and exit")
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
@@ -612,7 +623,7 @@ def main(argv: list[str] | None = None) -> int:
     logs = [r.name for r in REAL_LOGS if r.name in chosen]
     t_start = time.perf_counter()
     ov = tuple(a.set)
-    jobs = [(c.name, s, ov) for c in sims for s in range(1, a.seeds + 1)]
+    jobs = [(c.name, s, ov) for c in sims for s in range(1, max(a.seeds, c.min_seeds) + 1)]
     with multiprocessing.get_context("spawn").Pool(max(1, a.jobs)) as pool:
         log_async = pool.map_async(_log_job, [(n, ov) for n in logs])
         sim_out = pool.map(_sim_job, jobs, chunksize=1)
@@ -622,13 +633,14 @@ def main(argv: list[str] | None = None) -> int:
         res = [r for n, _, r in sim_out if n == c.name]
         rec: dict[str, Any] = {"case": c.name, "scenario": c.scenario, "profile": c.profile,
                                "what": c.what, "overrides": dict(c.overrides),
-                               "seeds": a.seeds}
+                               "seeds": max(a.seeds, c.min_seeds)}
         rec.update(row_figures(res, c.target))
         records.append(rec)
     records.extend(log_out)
     cfg_text = ("DEFAULT config" if not ov else "default config WITH " + " ".join(ov))
     print(f"issue-14 robustness: {cfg_text} + natural profile; simulated cases "
-          f"pooled over seeds 1..{a.seeds}; deg, %, s")
+          f"pooled over seeds 1..{a.seeds} (multirotor cases 1..{max(a.seeds, MR_SEEDS)}); "
+          "deg, %, s")
     print(HEADER)
     print("-" * len(HEADER))
     for rec in records:
