@@ -137,3 +137,18 @@ def test_a_yaw_off_within_each_checks_sigma_but_not_the_means_is_unflagged() -> 
         assert est.counters["heading_unflagged_drift"] == int(dropped)
         assert not est.gnss.course.align.realign_requested
         assert math.atan2(est.mat_nb[1, 0], est.mat_nb[0, 0]) == yaw
+
+
+def test_one_epoch_turning_a_flagged_yaw_beyond_three_aligned_sigmas_unflags_it() -> None:
+    """GIVEN a flagged heading (ground profile, no yaw bank; multirotor: a yaw bank),
+    WHEN one epoch's GNSS updates turn the yaw by 7 deg (> 3 x [init] aligned_sd = 6 deg)
+    or by 5 deg,
+    THEN the 7 deg turn drops the flag (``heading_unflagged_jump``; the yaw was that far off
+    while flagged), the 5 deg turn does not, and with a yaw bank the bank keeps the flag."""
+    for profile, turn_deg, stays in (("ground", 7.0, False), ("ground", 5.0, True),
+                                     ("multirotor", 7.0, True)):
+        est = build_estimator(load_config(None, [f"filter.profile={profile}"]))
+        est.heading_aligned = True
+        est.gnss.course.align.note_yaw_moved(est, math.radians(turn_deg))
+        assert est.heading_aligned is stays, (profile, turn_deg)
+        assert est.counters["heading_unflagged_jump"] == (0 if stays else 1)
