@@ -386,14 +386,26 @@ class YawBank:
         alone not) belongs to a heading up to 180 deg away, and the next accelerations
         "separate" tilt from bias with information that is not there: seed 47 of
         multirotor_manoeuvre, pitch 3.5 deg off at a 0.45 deg sigma after its trial
-        (docs/results.md, issue 15).  The same turn as every update's heading correction
-        (``navd.core.state.turn_tilt_cov``); velocity's rows need none, the trial moves it
-        onto the fix with fresh rows at once (:meth:`_main_onto_fix`)."""
+        (docs/results.md, issue 15).  Velocity (also navigation-frame) turns the same way
+        before the trial moves it onto the fix."""
         yk.rotate_main(est.buf, d)
         yk.bank_rotate(self.buf, d)
         self._s[_AGREE_REF] = yk.wrap(self._s[_AGREE_REF] - d)
-        st.turn_tilt_cov(est.buf, d)
         P = est.P
+        c = math.cos(d)
+        sn = math.sin(d)
+        for a in (0, 3):  # tilt N/E, velocity N/E: rows then columns, P <- R P R^T
+            b = a + 1
+            for k in range(15):
+                x = float(P[a, k])
+                y = float(P[b, k])
+                P[a, k] = c * x - sn * y
+                P[b, k] = sn * x + c * y
+            for k in range(15):
+                x = float(P[k, a])
+                y = float(P[k, b])
+                P[k, a] = c * x - sn * y
+                P[k, b] = sn * x + c * y
         P[2, :] = 0.0
         P[:, 2] = 0.0
         P[2, 2] = var
