@@ -401,6 +401,46 @@ def test_an_unexcited_update_teaches_a_member_no_yaw() -> None:
     assert np.all(np.linalg.eigvalsh(got) > 0.0) and np.allclose(got, got.T)
 
 
+def test_the_gnss_excitation_noise_floor_is_what_white_velocity_noise_gives() -> None:
+    """GIVEN bank_fix fed fixes at rest (IMU increments zero) whose horizontal velocity is
+    white noise with the stated per-axis sigma (0.1 m/s, 5 Hz; tau 0.5 s, so g = 0.4),
+    WHEN 20,000 epochs run,
+    THEN the low-passed GNSS acceleration's mean square matches 2 axes x (sigma^2 / T^2) x
+    2 g^2 / (2 - g) within 5 %, and the kernel's excitation (that floor subtracted) is
+    positive in e^-1 of the epochs (|LP|^2 of 2 white axes is exponential): the noise
+    subtracted is the noise there is, so at rest the gate passes as rarely as the
+    threshold says.  No epoch is weighed (the IMU side sees nothing)."""
+    from navd.core import state as st
+    from navd.core.aiding.yaw_bank import YawBank
+    bank = YawBank(cfg("filter.profile=multirotor"))
+    par = bank._par
+    bb = np.zeros(yk.SIZE)
+    yk.bank_reset(bb, bank.n)
+    sb = np.zeros(st.SIZE)
+    sb[st.MAT] = sb[st.MAT + 4] = sb[st.MAT + 8] = 1.0
+    rng = np.random.default_rng(11)
+    sd, T, dt_us = 0.1, 0.2, 5000
+    g = min(1.0, T / bank.c.excitation_tau)
+    floor = 2.0 * (sd * sd / (T * T)) * 2.0 * g * g / (2.0 - g)
+    t = 0.0
+    ms: list[float] = []
+    above = 0
+    weighed = 0
+    for k in range(20_020):
+        for _ in range(int(T * 1e6) // dt_us):
+            t += dt_us
+            yk.bank_imu(bb, sb, t, dt_us * 1e-6)
+        res = yk.bank_fix(bb, sb, par, t, 1.0, rng.normal(0.0, sd), rng.normal(0.0, sd), sd)
+        weighed += int(res == yk.WEIGHTED)
+        if k >= 20:
+            ms.append(bb[yk.H_GLPN] ** 2 + bb[yk.H_GLPE] ** 2)
+            above += int(bb[yk.H_GEXC] > 0.0)  # the kernel's own floor subtracted
+    m = np.asarray(ms)
+    assert abs(m.mean() / floor - 1.0) < 0.05, (m.mean(), floor)
+    assert abs(above / len(ms) - math.exp(-1.0)) < 0.02, above / len(ms)
+    assert weighed == 0
+
+
 def test_at_rest_the_bank_weighs_almost_no_epoch_and_its_members_keep_their_prior() -> None:
     """GIVEN the multirotor scenario's first 14.5 s, seeds 1-5 (the vehicle at rest on the
     ground: no acceleration at all, while the consumer accelerometer's noise and the
@@ -431,7 +471,11 @@ def test_at_rest_the_bank_weighs_almost_no_epoch_and_its_members_keep_their_prio
     assert float(np.median(widest)) >= 20.0, widest
 
 
-@pytest.mark.parametrize("seed", [4, 5])
+@pytest.mark.parametrize("seed", [4, 5, pytest.param(12, marks=pytest.mark.xfail(
+    strict=True, reason="seed 12: the bank aligns 10.8 deg off at sigma 8.6 deg (honest), then "
+    "the main filter's yaw sigma shrinks to 3 deg over five acceleration pulses while the "
+    "error stays 8-12 deg: 34 % of aligned epochs beyond 3 sigma (docs/results.md, session "
+    "2026-11-27 (f))"))])
 def test_multirotor_scenario_heading_stays_within_3_sigma(seed: int) -> None:
     """GIVEN navd's own `multirotor` scenario (issue 15's "Shown by"), seeds 4 and 5: on
     those the bank aligned the heading 12-20 deg off with a 3-4 deg sigma and the main
