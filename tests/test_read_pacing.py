@@ -8,6 +8,7 @@ import socket
 import sys
 import threading
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -17,6 +18,9 @@ from navd.io.mavlink import MavlinkDecoder, MavlinkInputConfig, MavlinkLink
 from navd.io.mavlink.link import PacedUdpTransport
 from navd.io.read_pacing import ReadPacer
 from navd.types import ImuSample, Sample
+
+if TYPE_CHECKING:
+    from navd.daemon.sources import ReceiveClock
 
 
 def _live(pacer: ReadPacer, t_end_us: int, lag_us: int, late: dict[int, int] | None = None
@@ -253,7 +257,26 @@ def test_a_read_after_a_hold_is_timed_at_the_arrival() -> None:
     left unread in the socket for 80 ms (as during a hold),
     WHEN it is read,
     THEN its receive time is the kernel's arrival stamp (within 20 ms of the send), not the
-    read 80 ms later: the latency navd reports counts the wait in the socket."""
+    read 80 ms later: the latency navd reports counts the wait in the socket.
+
+    The kernel stamps on the wall clock and navd converts with the two clocks' offset at
+    the read, so a step of the wall clock between send and read (this CI host's time sync
+    stepped it by ~80 ms once, 2026-11-27) moves the converted arrival by the step: such a
+    try is repeated (up to 5), not judged."""
+    for _ in range(5):
+        off0 = time.time_ns() - time.monotonic_ns()
+        rc, got, (sent, before_read, arrived) = _held_read()
+        if abs(time.time_ns() - time.monotonic_ns() - off0) < 2_000_000:
+            break
+    assert got == [1000], got
+    assert 0 < arrived - sent < 20_000_000, (arrived - sent) / 1e6
+    assert rc.last_ns == arrived  # the receive time handed on is the arrival
+    assert before_read - rc.last_ns > 50_000_000
+
+
+def _held_read() -> tuple[ReceiveClock, list[int], tuple[int, int, int]]:
+    """One HIGHRES_IMU datagram sent to a fresh udpin link and read by hand 80 ms later:
+    the receive clock, the samples, and (send, read, arrival) times in monotonic ns."""
     from navd.daemon.sources import ReceiveClock
 
     rc = ReceiveClock()
@@ -277,11 +300,7 @@ def test_a_read_after_a_hold_is_timed_at_the_arrival() -> None:
         link.close()
         return sent, before_read, t._batch.arrived_ns
 
-    sent, before_read, arrived = asyncio.run(main())
-    assert got == [1000], got
-    assert 0 < arrived - sent < 20_000_000, (arrived - sent) / 1e6
-    assert rc.last_ns == arrived  # the receive time handed on is the arrival
-    assert before_read - rc.last_ns > 50_000_000
+    return rc, got, asyncio.run(main())
 
 
 def test_a_clock_without_at_ns_is_read_not_replaced() -> None:
