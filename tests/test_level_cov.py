@@ -47,8 +47,11 @@ def test_levelling_p0_matches_monte_carlo_of_tilt_bias_and_heading() -> None:
     THEN the errors (phi, accelerometer bias) whitened by the filter's P0 have the identity
     covariance within sampling error (a diagonal P0 fails: tilt and bias are correlated
     about -0.7)."""
+    # level_max_time_s = 1: this checks P0 for a 1-s levelling; noise at tilt_sd would
+    # otherwise level longer in about half the draws (scatter above tilt_sd)
     cfg = EstimatorConfig.from_dict(load_config(None, [
-        "init.heading_source=config", "init.heading_deg=30", "init.heading_sd_deg=3"]))
+        "init.heading_source=config", "init.heading_deg=30", "init.heading_sd_deg=3",
+        "init.level_max_time_s=1"]))
     rng = np.random.default_rng(14)
     sd_b = cfg.imu.accel_bias_sd
     # per-increment noise whose 1 s mean (100 increments over 1 s) is g * tilt_sd

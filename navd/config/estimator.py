@@ -33,6 +33,10 @@ class FilterSection:
     # is understated, up to max_q_scale times its variance (navd/core/aiding/adaptive_noise.py)
     adaptive_noise: bool = _f(True)
     max_q_scale: float = _f(25.0)
+    # measure the IMU's white noise from its own samples (second differences, motion refused
+    # by a whiteness check) and never propagate with less than that, up to max_q_scale
+    # (navd/core/aiding/imu_noise.py)
+    measure_imu_noise: bool = _f(True)
     # ... and the gyro-bias random walk when the innovations persist from epoch to epoch (a
     # bias that drifts faster than configured: a warming MEMS gyro), up to this many times
     # its variance (1e6: 1000x the density, 5000 deg/h/sqrt(h) for the consumer grade)
@@ -123,8 +127,15 @@ class InitSection:
     vel_sd: float = _f(0.5, "mps")
     pos_sd: float = _f(10.0, "m")
     level_time: float = _f(1.0, "s")
+    # ... and longer, up to this, while the window is unaccelerated and the mean specific
+    # force's own scatter still allows a tilt sigma above tilt_sd (a noisy IMU)
+    level_max_time: float = _f(10.0, "s")
     level_max_accel: float = _f(0.3, "mps2")
     static_rate_tol: float = _f(3.0, "dps")
+
+    def validate(self) -> None:
+        check(self.level_max_time >= self.level_time, "init", "level_max_time_s",
+              ">= level_time_s")
 
 
 @dataclass(frozen=True)

@@ -45,6 +45,7 @@ from navd.core.aiding.dov import DovAid, DovField
 from navd.core.aiding.gnss import GnssAiding
 from navd.core.aiding.gnss_heading import course_may_align
 from navd.core.aiding.gyro_rest import GyroRest, rest_push
+from navd.core.aiding.imu_noise import ImuNoise, noise_push
 from navd.core.aiding.yaw_bank import YawBank, bank_enabled
 from navd.core.aiding.yaw_bank_kernels import bank_imu, main_yaw, wrap
 from navd.core.earth import geodetic_to_ecef, radii
@@ -150,6 +151,10 @@ class Estimator:
         self.gnss = GnssAiding(c)
         self.gyro_rest = GyroRest(c)
         self._rest_acc = self.gyro_rest.acc
+        # the IMU's white noise measured from its samples: a floor under q (imu_noise.py)
+        self.imu_noise = ImuNoise(c.imu.gyro_arw, c.imu.accel_vrw, c.filter.max_q_scale,
+                                  c.filter.measure_imu_noise)
+        self._noise_acc = self.imu_noise.acc
         self.pol = pol
         aids: list[Aid] = [self.dov_aid, self.gnss]
         if pol is not None:
@@ -205,6 +210,7 @@ class Estimator:
         for aid in self.aids:
             aid.reset()
         self.gyro_rest.reset()
+        self.imu_noise.restart()
         if self.yaw_bank is not None:
             self.yaw_bank.reset()
 
@@ -384,7 +390,8 @@ class Estimator:
         lim[LIM_BACK] = clock_back_us
         lim[LIM_AHEAD] = clock_ahead_us
         bank = self._bank_buf
-        k = push_run(self._buf, self._rest_acc, self._no_bank if bank is None else bank,
+        k = push_run(self._buf, self._rest_acc, self._noise_acc,
+                     self._no_bank if bank is None else bank,
                      bank is not None, block.t_us, block.dt_us, block.inc, i0, block.n,
                      self.t_us, clock_t_us, lim, self._coning, stop_at_us)
         if k:
@@ -439,17 +446,19 @@ class Estimator:
         if self._stage != _WAIT:
             # rest detector and step in one kernel call, unless a rest window completes
             # (then it is closed first and the step follows, as for a waiting estimator)
-            if not st.rest_then_step(self._rest_acc, self._buf, t, dtx, dty, dtz, dvx, dvy,
-                                     dvz, dt, self.gyro_rest.window_s, self._coning,
-                                     self._cov_interval):
+            if not st.rest_then_step(self._rest_acc, self._noise_acc, self._buf, t, dtx, dty,
+                                     dtz, dvx, dvy, dvz, dt, self.gyro_rest.window_s,
+                                     self._coning, self._cov_interval):
                 if self._bank_buf is not None:
                     bank_imu(self._bank_buf, self._buf, t, dt)
                 self._imu_dt_us = dt_us
                 return True
             self.gyro_rest.window_done(self)
-        elif rest_push(self._rest_acc, dtx, dty, dtz, dvx, dvy, dvz, dt,
-                       self.gyro_rest.window_s):
-            self.gyro_rest.window_done(self)
+        else:
+            noise_push(self._noise_acc, self._q, t, dtx, dty, dtz, dvx, dvy, dvz, dt)
+            if rest_push(self._rest_acc, dtx, dty, dtz, dvx, dvy, dvz, dt,
+                         self.gyro_rest.window_s):
+                self.gyro_rest.window_done(self)
         if self._stage == _WAIT:
             self._level(s, dt)
             return False
@@ -475,7 +484,7 @@ class Estimator:
         self._level_n += 1
         self._level_t += dt
         if (self._level_t >= self.cfg.init.level_time and self._pending_fix is not None
-                and self._fix_agreement >= 1):
+                and self._fix_agreement >= 1 and self._level_done(self._pending_fix)):
             self._start_nav(self._pending_fix)
         elif self._level_t > 30.0:
             # no fix for a long time: restart the average so it describes the present
@@ -484,6 +493,47 @@ class Estimator:
             self._level_t = 0.0
             self._level_fix0 = None
 
+    def _level_static_now(self, fix: GnssSample) -> bool:
+        """Whether the levelling window so far is unaccelerated: no turning and no change of
+        velocity.  Per-sample accelerometer noise of a MEMS IMU can exceed any useful
+        threshold, so this is judged from the mean rate and the GNSS velocity change between
+        the window's first fix and ``fix``."""
+        c = self.cfg
+        ls = self._level_sum
+        f0 = self._level_fix0 if self._level_fix0 is not None else fix
+        dt_fix = (fix.t_us - f0.t_us) * 1e-6
+        dv = math.sqrt((fix.vel_n - f0.vel_n) ** 2 + (fix.vel_e - f0.vel_e) ** 2
+                       + (fix.vel_d - f0.vel_d) ** 2)
+        return bool(
+            math.sqrt(ls[3] ** 2 + ls[4] ** 2 + ls[5] ** 2) / self._level_t < c.init.static_rate_tol
+            and (dv < c.init.level_max_accel * dt_fix + 4.0 * max(fix.vel_acc_mps, 0.0)
+                 if dt_fix > 0.0 else math.hypot(fix.vel_n, fix.vel_e) < 0.5))
+
+    def _level_scatter_sd(self) -> float:
+        """Tilt sigma (rad) the mean specific force's own noise allows, from the window's
+        scatter (never the configured noise, which may be understated): Var(sum dv) =
+        n Var(dv) for increments of equal length, so the mean specific force sum(dv)/T has
+        n Var(dv)/T^2 per axis; over g for the tilt."""
+        ls = self._level_sum
+        n = self._level_n
+        if n < 2:
+            return math.inf
+        T = self._level_t
+        var_dv = sum(max(ls[6 + i] - ls[i] * ls[i] / n, 0.0) for i in range(3)) / (3 * (n - 1))
+        g = max(math.sqrt(ls[0] ** 2 + ls[1] ** 2 + ls[2] ** 2) / T, 0.5 * G0)
+        return math.sqrt(n * var_dv) / T / g
+
+    def _level_done(self, fix: GnssSample) -> bool:
+        """Whether levelling may end now (``level_time`` has passed): its tilt is as good as
+        ``tilt_sd`` asks, or cannot get better (the window stopped being unaccelerated, or
+        ``level_max_time`` is reached).  A noisy IMU levels longer, where it can, rather than
+        start navigation several degrees off (noise_x3: 1 s of 3x the configured VRW gives
+        5 deg of tilt sigma, and errors of that size leave the gyro-bias estimate off by
+        more than its sigma for minutes)."""
+        c = self.cfg.init
+        return (self._level_t >= c.level_max_time or not self._level_static_now(fix)
+                or self._level_scatter_sd() <= c.tilt_sd)
+
     def _start_nav(self, fix: GnssSample) -> None:
         c = self.cfg
         ls = self._level_sum
@@ -491,18 +541,7 @@ class Estimator:
         # the known accelerometer bias comes off before levelling: at rest it is a tilt error
         ba0 = c.imu.accel_bias
         fx, fy, fz = ls[0] / T - ba0[0], ls[1] / T - ba0[1], ls[2] / T - ba0[2]
-        # Levelling needs the mean specific force to be gravity alone: no turning and no
-        # change of velocity over the window.  Per-sample accelerometer noise of a MEMS IMU
-        # can exceed any useful threshold, so this is judged from the mean rate and the GNSS
-        # velocity change between the window's first and last fix.
-        f0 = self._level_fix0 if self._level_fix0 is not None else fix
-        dt_fix = (fix.t_us - f0.t_us) * 1e-6
-        dv = math.sqrt((fix.vel_n - f0.vel_n) ** 2 + (fix.vel_e - f0.vel_e) ** 2
-                       + (fix.vel_d - f0.vel_d) ** 2)
-        self._level_static = (
-            math.sqrt(ls[3] ** 2 + ls[4] ** 2 + ls[5] ** 2) / T < c.init.static_rate_tol
-            and (dv < c.init.level_max_accel * dt_fix + 4.0 * max(fix.vel_acc_mps, 0.0)
-                 if dt_fix > 0.0 else math.hypot(fix.vel_n, fix.vel_e) < 0.5))
+        self._level_static = self._level_static_now(fix)
         roll = math.atan2(-fy, -fz)
         pitch = math.atan2(fx, math.sqrt(fy * fy + fz * fz))
         yaw = 0.0
@@ -538,19 +577,15 @@ class Estimator:
         if not self._level_static:
             self.counters["level_not_static"] += 1
         g = max(math.sqrt(fx * fx + fy * fy + fz * fz), 0.5 * G0)
-        # The mean's own noise, from the window's scatter (never the configured noise, which
-        # may be understated): Var(sum dv) = n Var(dv) for increments of equal length, so the
-        # mean specific force sum(dv)/T has n Var(dv)/T^2 per axis.  A tilt_sd below it would
-        # claim a levelling better than the data allow (noise_x3: 5.3 deg against 2).
-        n = self._level_n
-        if n > 1:
-            var_dv = sum(max(ls[6 + i] - ls[i] * ls[i] / n, 0.0) for i in range(3)) / (3 * (n - 1))
-            tilt_sd = max(tilt_sd, math.sqrt(n * var_dv) / T / g)
+        # a tilt_sd below the mean's own noise would claim a levelling better than the data
+        # allow (noise_x3 after 1 s: 5.3 deg against 2)
+        tilt_sd = max(tilt_sd, self._level_scatter_sd())
         heading_sd = c.init.heading_sd if yaw_known else math.inf
         level_cov(P, self.mat_nb, pitch, yaw, tilt_sd, heading_sd, c.imu.accel_bias_sd, g)
         P[3, 3] = P[4, 4] = P[5, 5] = c.init.vel_sd**2
         self._set_pos_var(c.init.pos_sd)
         P[9, 9] = P[10, 10] = P[11, 11] = c.imu.gyro_bias_sd**2
+        self.imu_noise.close_window(self._q, self._level_static)
         self._stage = _NAV
         self.counters["nav_start"] += 1
         if self.yaw_bank is not None:
@@ -606,7 +641,8 @@ class Estimator:
             self._fix_agreement = 0
             self._level_fix0 = g
         self._pending_fix = g
-        if self._level_t >= self.cfg.init.level_time and self._fix_agreement >= 1:
+        if (self._level_t >= self.cfg.init.level_time and self._fix_agreement >= 1
+                and self._level_done(g)):
             self._start_nav(g)
             return True
         return False

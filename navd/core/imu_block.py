@@ -28,6 +28,7 @@ import numpy.typing as npt
 from navd.core import state as st
 from navd.core._jit import jit
 from navd.core.aiding.gyro_rest import rest_completes, rest_push
+from navd.core.aiding.imu_noise import noise_push
 from navd.core.aiding.yaw_bank_kernels import bank_imu
 from navd.types import ImuSample
 
@@ -99,9 +100,9 @@ IArr = npt.NDArray[np.int64]
 
 
 @jit
-def push_run(buf: Arr, rest_acc: Arr, bank: Arr, has_bank: bool, t_arr: IArr, dt_arr: IArr,
-             inc: Arr, i0: int, n: int, last_t: int, guard_t: int, lim: Arr, coning: bool,
-             stop_at: int) -> int:
+def push_run(buf: Arr, rest_acc: Arr, noise: Arr, bank: Arr, has_bank: bool, t_arr: IArr,
+             dt_arr: IArr, inc: Arr, i0: int, n: int, last_t: int, guard_t: int, lim: Arr,
+             coning: bool, stop_at: int) -> int:
     """Push samples ``i0..n-1`` of a block into a navigating estimator's buffer ``buf``, as
     ``Estimator._push_imu`` does each; return how many were consumed (from ``i0`` on).
 
@@ -110,7 +111,8 @@ def push_run(buf: Arr, rest_acc: Arr, bank: Arr, has_bank: bool, t_arr: IArr, dt
     or that ``_push_imu`` would refuse, count anything but ``imu`` for, or close a rest
     window with; and right after the first consumed sample stamped at or past ``stop_at``
     (an output instant: the caller asks its sinks).  ``last_t``: the estimator's newest
-    stamp (>= 0).  ``rest_acc``: the rest detector's accumulators; ``bank``: the yaw bank's
+    stamp (>= 0).  ``rest_acc``: the rest detector's accumulators; ``noise``: the white-noise
+    measurement's (:mod:`navd.core.aiding.imu_noise`); ``bank``: the yaw bank's
     buffer when ``has_bank``.  The caller does the Python side of what was consumed: the
     estimator's ``t_us``, ``_imu_dt_us`` and ``imu`` counter, and the guard's newest stamp.
     """
@@ -155,6 +157,7 @@ def push_run(buf: Arr, rest_acc: Arr, bank: Arr, has_bank: bool, t_arr: IArr, dt
             guard_t = t_us
         last_t = t_us
         t = float(t_us)
+        noise_push(noise, buf[st.Q:st.Q + 15], t, dtx, dty, dtz, dvx, dvy, dvz, dt)
         rest_push(rest_acc, dtx, dty, dtz, dvx, dvy, dvz, dt, window_s)
         st.imu_step(buf, t, dtx, dty, dtz, dvx, dvy, dvz, dt, coning, cov_interval)
         if has_bank:

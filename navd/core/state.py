@@ -18,6 +18,7 @@ from navd.core import kalman
 from navd.core._jit import jit
 from navd.core.aiding import gnss_heading, gnss_position, gnss_velocity
 from navd.core.aiding.gyro_rest import rest_push
+from navd.core.aiding.imu_noise import noise_push
 from navd.core.rotation import exp_into
 
 Arr = npt.NDArray[np.float64]
@@ -113,12 +114,14 @@ def imu_step(buf: Arr, t_us: float, dtx: float, dty: float, dtz: float, dvx: flo
 
 
 @jit
-def rest_then_step(acc: Arr, buf: Arr, t_us: float, dtx: float, dty: float, dtz: float,
-                   dvx: float, dvy: float, dvz: float, dt: float, window_s: float, coning: bool,
-                   cov_interval: float) -> bool:
-    """A navigating IMU sample in one kernel call (issue 18): :func:`rest_push` into the
-    rest detector's accumulators ``acc``, then :func:`imu_step`, unless the sample
-    completed a rest window: then True, and no step (the caller closes the window first)."""
+def rest_then_step(acc: Arr, noise: Arr, buf: Arr, t_us: float, dtx: float, dty: float,
+                   dtz: float, dvx: float, dvy: float, dvz: float, dt: float, window_s: float,
+                   coning: bool, cov_interval: float) -> bool:
+    """A navigating IMU sample in one kernel call (issue 18): :func:`noise_push` into the
+    white-noise measurement ``noise``, :func:`rest_push` into the rest detector's
+    accumulators ``acc``, then :func:`imu_step`, unless the sample completed a rest window:
+    then True, and no step (the caller closes the window first)."""
+    noise_push(noise, buf[Q:Q + 15], t_us, dtx, dty, dtz, dvx, dvy, dvz, dt)
     if rest_push(acc, dtx, dty, dtz, dvx, dvy, dvz, dt, window_s):
         return True
     imu_step(buf, t_us, dtx, dty, dtz, dvx, dvy, dvz, dt, coning, cov_interval)

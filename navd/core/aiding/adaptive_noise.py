@@ -144,7 +144,6 @@ class AdaptiveNoise:
         self._ratio = np.zeros(_WINDOW)
         self._sorted = np.zeros(_WINDOW)  # scratch for the window's median
         imu = cfg.imu
-        self._q_white = (imu.gyro_arw ** 2, imu.accel_vrw ** 2)
         self._q_bg = imu.gyro_bias_rw ** 2
         self._gyro_sd2 = imu.gyro_bias_sd ** 2
         self._t_prev = -1  # IMU time of the previous epoch, us
@@ -392,7 +391,6 @@ class AdaptiveNoise:
 
     def _apply(self, est: Estimator) -> None:
         q = est.buf[st.Q:st.Q + 15]  # the continuous noise densities the propagation uses
-        sc = self._s[_SCALE]
-        q[0] = q[1] = q[2] = sc * self._q_white[0]
-        q[3] = q[4] = q[5] = sc * self._q_white[1]
+        # the white noise: this scale times the measured floor (core/aiding/imu_noise.py)
+        est.imu_noise.set_scale(float(self._s[_SCALE]), q)
         q[9] = q[10] = q[11] = self._s[_BSCALE] * self._q_bg

@@ -105,6 +105,10 @@ class GnssAiding:
             "r_scale": self.adaptive.r_scale,
             # ... and of the gyro-bias random walk
             "bias_q_scale": self.adaptive.bias_scale,
+            # the IMU's white noise measured from its samples, as a variance over the
+            # configured (gyro, accelerometer; >= 1: a floor under the scale above)
+            "imu_noise_floor": [round(est.imu_noise.gyro_floor, 3),
+                                round(est.imu_noise.accel_floor, 3)],
         }
 
     def fuse(self, est: Estimator, g: GnssSample) -> bool:
