@@ -30,15 +30,15 @@ difference chains break too often for a block estimate.
 
 Use.  The floor is the median of the last ``RING`` accepted windows, the ring starting full
 of 1 (the configured value): it rises only once most recent windows say so, so one wild
-window moves nothing; never below 1, since the
-config may overstate the noise (a vibration allowance) and a filtered stream measures low.
+window moves nothing; never below 1, since the config may overstate the noise (a vibration
+allowance) and a filtered stream measures low.
 The densities the propagation uses are then ``min(floor * s, cap) * configured`` with ``s``
 the innovation test's own scale and ``cap`` its ``[filter] max_q_scale``.  Applied the moment
 a window closes, inside the IMU kernel (no Python per sample); the per-sample path and the
 compiled batch run both call :func:`noise_push`, so they stay identical.  Navigation's start
 judges the open window at once; after a trusted levelling (no turning, no velocity change)
-its per-sample estimate alone sets the whole ring.  A restart keeps the floors (same sensor) and restarts the
-difference chains.
+its per-sample estimate alone sets the whole ring.  A restart keeps the floors (same
+sensor) and restarts the difference chains.
 """
 
 from __future__ import annotations
