@@ -78,7 +78,8 @@ SCALE = RINGS + 2 * RING_W
 Q0G, Q0A, CAP, ON = SCALE + 1, SCALE + 2, SCALE + 3, SCALE + 4
 PT = SCALE + 5  # the previous sample's stamp, us
 SORT = SCALE + 6  # scratch for a ring's median (RING)
-SIZE = SORT + RING
+RATES = SORT + RING  # scratch: the sample's rates (gyro xyz, accel xyz)
+SIZE = RATES + 6
 
 
 @jit
@@ -162,6 +163,34 @@ def _close_still(na: Arr, q: Arr) -> None:
 
 
 @jit
+def _chain_step(na: Arr, rates: int, p1: int, p2: int, chain: int, sums: int, count: int,
+                weight: float) -> None:
+    """One step of a second-difference chain: the rates at ``na[rates:rates + 6]`` against
+    the chain's previous two (``na[p1:]``, ``na[p2:]``, then shifted); once the chain is two
+    long, d2^2 times ``weight`` (the sample's or block's length, s) is added to ``na[sums]``
+    (gyro) and ``na[sums + 1]`` (accelerometer) and counted in ``na[count]``."""
+    full = na[chain] >= 2.0
+    sg = 0.0
+    sa = 0.0
+    for j in range(6):
+        r = na[rates + j]
+        if full:
+            d = r - 2.0 * na[p1 + j] + na[p2 + j]
+            if j < 3:
+                sg += d * d
+            else:
+                sa += d * d
+        na[p2 + j] = na[p1 + j]
+        na[p1 + j] = r
+    if full:
+        na[sums] += sg * weight
+        na[sums + 1] += sa * weight
+        na[count] += 1.0
+    else:
+        na[chain] += 1.0
+
+
+@jit
 def noise_push(na: Arr, q: Arr, t_us: float, dtx: float, dty: float, dtz: float, dvx: float,
                dvy: float, dvz: float, dt: float) -> None:
     """Add one IMU sample (stamped ``t_us``, increments in rad and m/s over ``dt`` s) to the
@@ -182,28 +211,12 @@ def noise_push(na: Arr, q: Arr, t_us: float, dtx: float, dty: float, dtz: float,
     na[PDT] = dt
     na[PT] = t_us
     inv = 1.0 / dt
-    chain = na[CHAIN]
-    sg = 0.0
-    sa = 0.0
     for j in range(6):
         x = dtx if j == 0 else dty if j == 1 else dtz if j == 2 else dvx if j == 3 \
             else dvy if j == 4 else dvz
-        r = x * inv
-        if chain >= 2.0:
-            d = r - 2.0 * na[P1 + j] + na[P2 + j]
-            if j < 3:
-                sg += d * d
-            else:
-                sa += d * d
-        na[P2 + j] = na[P1 + j]
-        na[P1 + j] = r
+        na[RATES + j] = x * inv
         na[BSUM + j] += x
-    if chain >= 2.0:
-        na[S1G] += sg * dt
-        na[S1A] += sa * dt
-        na[N1] += 1.0
-    else:
-        na[CHAIN] = chain + 1.0
+    _chain_step(na, RATES, P1, P2, CHAIN, S1G, N1, dt)
     # block means
     if na[BLEN] == 0.0:
         na[BLEN] = max(float(MIN_BLOCK), float(round(BLOCK_S * inv)))
@@ -212,26 +225,11 @@ def noise_push(na: Arr, q: Arr, t_us: float, dtx: float, dty: float, dtz: float,
     if na[BN] >= na[BLEN]:
         bt = na[BT]
         binv = 1.0 / bt
-        bchain = na[BCHAIN]
-        bg = 0.0
-        ba = 0.0
         for j in range(6):
-            r = na[BSUM + j] * binv
-            if bchain >= 2.0:
-                d = r - 2.0 * na[BP1 + j] + na[BP2 + j]
-                if j < 3:
-                    bg += d * d
-                else:
-                    ba += d * d
-            na[BP2 + j] = na[BP1 + j]
-            na[BP1 + j] = r
+            na[BSUM + j] *= binv  # the block's mean rates, in place
+        _chain_step(na, BSUM, BP1, BP2, BCHAIN, SBG, NB, bt)
+        for j in range(6):
             na[BSUM + j] = 0.0
-        if bchain >= 2.0:
-            na[SBG] += bg * bt
-            na[SBA] += ba * bt
-            na[NB] += 1.0
-        else:
-            na[BCHAIN] = bchain + 1.0
         na[BN] = 0.0
         na[BT] = 0.0
     na[WT] += dt
