@@ -12,7 +12,6 @@ import numpy.typing as npt
 import pytest
 
 from firmware_sim import generate, load_scenario
-from firmware_sim.run import SimRun
 from navd.config import load_config
 from navd.core import state as st
 from navd.core.aiding import imu_noise as m
@@ -170,13 +169,13 @@ def test_switched_off_it_measures_nothing() -> None:
 
 
 def _run(overrides: dict[str, object], config: list[str] | None = None,
-         seconds: float = 60.0) -> tuple[Estimator, SimRun]:
+         seconds: float = 60.0) -> Estimator:
     sc = load_scenario("car480", {"duration_s": seconds, **overrides})
     run = generate(sc, seed=1, progress=False)
     est = build_estimator(load_config(None, config or []))
     for s in run.samples():
         est.push(s)
-    return est, run
+    return est
 
 
 def test_the_estimator_propagates_with_the_measured_noise() -> None:
@@ -184,7 +183,7 @@ def test_the_estimator_propagates_with_the_measured_noise() -> None:
     THEN the status shows floors near 9 and 2.07, the propagation's densities carry them,
     and the innovation test's own scale has not had to move; car480 as shipped keeps
     floors below 1.2 (its IMU is the configured one)."""
-    est, _ = _run({"imu.arw_rad_per_sqrt_s": 3 * 0.24 * DEG / 60.0,
+    est = _run({"imu.arw_rad_per_sqrt_s": 3 * 0.24 * DEG / 60.0,
                    "imu.vrw_mps_per_sqrt_s": 3 * 0.3})
     floors = est.status()["imu_noise_floor"]
     assert isinstance(floors, list)
@@ -195,7 +194,7 @@ def test_the_estimator_propagates_with_the_measured_noise() -> None:
     assert q[3] == pytest.approx(est.imu_noise.accel_floor * VRW**2)
     assert q[0] == pytest.approx(est.imu_noise.gyro_floor * ARW**2)
     assert est.gnss.adaptive.scale == 1.0
-    clean, _ = _run({})
+    clean = _run({})
     clean_floors = clean.status()["imu_noise_floor"]
     assert isinstance(clean_floors, list)
     assert max(clean_floors) < 1.2

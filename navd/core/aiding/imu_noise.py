@@ -55,15 +55,16 @@ BLOCK_S = 0.2  # block length of the whiteness check, s (at least MIN_BLOCK samp
 MIN_BLOCK = 4
 FLAT = 2.0  # block estimate at most FLAT x the per-sample one: not motion
 RING = 3  # accepted windows whose median is the floor
-_MIN_D2 = 10  # second differences (per axis) a window needs, per sample and per block
+_MIN_D2 = 10  # second differences (all three axes at once) a window needs, per sample and
+# per block
 
 # accumulator layout (float64): previous two rate samples (gyro xyz, accel xyz), chain
 # length, previous interval; window sums of d2^2 dt (gyro, accel) and their count, window
 # time; block sums of the increments, samples in the block, block time, block length;
 # previous two block rates, block chain length; window sums over blocks and their count;
-# per sensor a ring of accepted window ratios, its fill and next slot, and the floor; the
-# innovation test's scale, the configured densities^2 (gyro, accel), the cap, on/off, the
-# previous stamp
+# per sensor a ring of accepted window ratios, its next slot and the floor; the innovation
+# test's scale, the configured densities^2 (gyro, accel), the cap, on/off, the previous
+# stamp; scratch
 P1, P2 = 0, 6
 CHAIN, PDT = 12, 13
 S1G, S1A, N1, WT = 14, 15, 16, 17
@@ -104,16 +105,31 @@ def noise_apply(na: Arr, q: Arr) -> None:
     ``min(floor * scale, cap) * configured`` for the gyro (0-2) and the accelerometer (3-5)."""
     s = na[SCALE]
     cap = na[CAP]
-    fg = na[FLOOR_G] if na[ON] != 0.0 else 1.0
-    fa = na[FLOOR_A] if na[ON] != 0.0 else 1.0
-    vg = min(fg * s, cap) * na[Q0G]
-    va = min(fa * s, cap) * na[Q0A]
+    vg = min(na[FLOOR_G] * s, cap) * na[Q0G]  # floors stay 1 while switched off
+    va = min(na[FLOOR_A] * s, cap) * na[Q0A]
     q[0] = vg
     q[1] = vg
     q[2] = vg
     q[3] = va
     q[4] = va
     q[5] = va
+
+
+@jit
+def _clear_window(na: Arr) -> None:
+    na[S1G] = na[S1A] = na[N1] = na[WT] = 0.0
+    na[SBG] = na[SBA] = na[NB] = 0.0
+
+
+@jit
+def _restart_chains(na: Arr) -> None:
+    """Both difference chains start over (the window's sums are kept)."""
+    na[CHAIN] = 0.0
+    na[BCHAIN] = 0.0
+    na[BN] = 0.0
+    na[BT] = 0.0
+    for j in range(6):
+        na[BSUM + j] = 0.0
 
 
 @jit
@@ -137,8 +153,7 @@ def _close(na: Arr, q: Arr) -> None:
             if f != na[ring + _FLOOR]:
                 na[ring + _FLOOR] = f
                 changed = True
-    na[S1G] = na[S1A] = na[N1] = na[WT] = 0.0
-    na[SBG] = na[SBA] = na[NB] = 0.0
+    _clear_window(na)
     if changed:
         noise_apply(na, q)
 
@@ -158,8 +173,7 @@ def _close_still(na: Arr, q: Arr) -> None:
                 na[ring + i] = e1
             na[ring + _FLOOR] = max(e1, 1.0)
         noise_apply(na, q)
-    na[S1G] = na[S1A] = na[N1] = na[WT] = 0.0
-    na[SBG] = na[SBA] = na[NB] = 0.0
+    _clear_window(na)
 
 
 @jit
@@ -201,13 +215,8 @@ def noise_push(na: Arr, q: Arr, t_us: float, dtx: float, dty: float, dtz: float,
     if pdt > 0.0 and (dt > 1.5 * pdt or dt * 1.5 < pdt
                       or t_us - na[PT] > 1.5e6 * dt or t_us <= na[PT]):
         # a gap, another interval, a stamp out of order: the motion across it is not
-        # small, so differences across it are not white noise's; both chains start over
-        na[CHAIN] = 0.0
-        na[BCHAIN] = 0.0
-        na[BN] = 0.0
-        na[BT] = 0.0
-        for j in range(6):
-            na[BSUM + j] = 0.0
+        # small, so differences across it are not white noise's
+        _restart_chains(na)
     na[PDT] = dt
     na[PT] = t_us
     inv = 1.0 / dt
@@ -257,10 +266,9 @@ class ImuNoise:
 
     def restart(self) -> None:
         """Start the difference chains over (a time jump); floors and rings stay."""
-        a = self.acc
-        a[CHAIN] = a[BCHAIN] = a[BN] = a[BT] = a[PDT] = 0.0
-        a[BSUM:BSUM + 6] = 0.0
-        a[S1G] = a[S1A] = a[N1] = a[WT] = a[SBG] = a[SBA] = a[NB] = 0.0
+        _restart_chains(self.acc)
+        _clear_window(self.acc)
+        self.acc[PDT] = 0.0
 
     def close_window(self, q: Arr, still: bool) -> None:
         """Judge the samples of the open window now (navigation starts: the floor should be
