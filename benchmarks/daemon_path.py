@@ -64,7 +64,9 @@ async def run(a: argparse.Namespace) -> None:
         f'[mavlink]\nlisten = "udpin:127.0.0.1:{free_port()}"\n'
         f'send = "udpout:127.0.0.1:{rx.getsockname()[1]}"\nnominal_imu_rate_hz = 1000.0\n'
         f'[zenoh]\nvehicle = "path{pz}"\nlisten = ["tcp/127.0.0.1:{pz}"]\n'
-        "[daemon]\nstatus_period_s = 1000\nlog_period_s = 3600\n")
+        # read on the loop (this feed calls its readiness callback itself; the compiled
+        # reader thread hands batches to the same batch_received)
+        "[daemon]\nstatus_period_s = 1000\nlog_period_s = 3600\nrx_thread = false\n")
 
     zenoh_hash = hashlib.sha1()
     text_of = nz.attitude_text

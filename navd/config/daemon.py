@@ -66,6 +66,10 @@ class DaemonSection:
     # this long before the next output instant's sample is due
     read_hold_max: float = _f(20.0, "ms")
     read_hold_margin: float = _f(3.0, "ms")
+    # the UDP input read by a thread of compiled code that wakes the event loop once per
+    # output instant (Linux; read_hold_max_ms then bounds how long a datagram is held);
+    # false: read on the event loop, paced as above
+    rx_thread: bool = _f(True)
     # navigating without a fused GNSS fix for this long (sensor time) is "coasting"
     gnss_timeout: float = _f(3.0, "s")
 

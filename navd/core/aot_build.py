@@ -78,6 +78,23 @@ def exercise_lane(est: Any, t_us: int) -> None:
     lane = np.zeros(hb.LANE_STATE, np.int64)
     hb.decode_run(np.frombuffer(data, np.uint8), offs, 0, 1, lane, np.ones(2),
                   np.zeros(64, np.uint8), np.zeros(6), block.t_us, block.dt_us, block.inc, 0)
+    exercise_udp_rx()
+
+
+def exercise_udp_rx() -> None:
+    """The compiled UDP reader (navd.core.udp_rx) with the argument types its transport
+    passes; told to stop before it starts, it returns at once without a system call."""
+    import numpy as np
+
+    from navd.core import udp_rx
+
+    ctl = np.zeros(udp_rx.CTL_SIZE, np.int64)
+    ctl[udp_rx.C_STOP] = 1
+    bufs = [np.frombuffer(bytearray(64), np.uint8) for _ in range(2)]
+    offs = np.zeros((2, 3), np.int64)
+    addr = np.zeros((2, 2, udp_rx.ADDR_BYTES), np.uint8)
+    udp_rx.rx_loop(-1, -1, -1, bufs[0], bufs[1], offs[0], offs[1], addr[0], addr[1],
+                   np.zeros((2, udp_rx.META_SIZE), np.int64), ctl, 16)
 
 
 def core_files() -> dict[str, str]:

@@ -387,11 +387,19 @@ class Daemon:
             sinks.append(self.foxglove_sink)
         self.sinks = sinks + self._extra
         hold = round(c.daemon.read_hold_max * 1e6)
-        if hold > 0 and self.sinks:
+        margin = round(c.daemon.read_hold_margin * 1e6)
+        periods = [s.schedule.period_us for s in self.sinks]
+        if hold > 0 and self.sinks and c.daemon.rx_thread and self.sources.read_in_thread(
+                periods, hold, margin):
+            # the loop wakes about once per output instant; a thread of compiled code
+            # reads the datagrams (issue 18)
+            _log.info("UDP input read by a compiled thread, handed on at each output "
+                      "instant (at most %.0f ms held, read again %.0f ms before each)",
+                      hold * 1e-3, margin * 1e-3)
+        elif hold > 0 and self.sinks:
             # outputs are due on the sinks' grids of sensor time: between two instants the
             # UDP input may wait in the socket and be read in one batch (issue 18)
-            pacer = ReadPacer([s.schedule.period_us for s in self.sinks], hold,
-                              round(c.daemon.read_hold_margin * 1e6))
+            pacer = ReadPacer(periods, hold, margin)
             if self.sources.pace_reads(pacer):
                 _log.info("UDP input read in batches between output instants (at most "
                           "%.0f ms apart, from %.0f ms before each)", hold * 1e-3,

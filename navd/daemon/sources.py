@@ -25,7 +25,7 @@ import asyncio
 import collections
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, Protocol, TypeVar
 
 from navd.config.daemon import DaemonConfig
@@ -390,6 +390,14 @@ class Sources:
         (:mod:`navd.io.read_pacing`); False when there is no such input."""
         link = self.mavlink
         return link is not None and link.pace_reads(pacer)
+
+    def read_in_thread(self, periods_us: Sequence[int], max_hold_us: int,
+                       margin_us: int) -> bool:
+        """Read the MAVLink UDP input in a compiled thread that wakes the loop once per
+        output instant (:meth:`navd.io.mavlink.link.MavlinkLink.read_in_thread`); False
+        when there is no such input or the thread cannot run here."""
+        link = self.mavlink
+        return link is not None and link.read_in_thread(periods_us, max_hold_us, margin_us)
 
     def counters(self) -> dict[str, dict[str, int]]:
         out: dict[str, dict[str, int]] = {}

@@ -472,6 +472,19 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         c["imu_ok"] = c.get("imu_ok", 0) + k
         return k
 
+    def watched_imu(self) -> tuple[int, int, int]:
+        """(system id, component id, IMU instance) of the HIGHRES_IMU stream whose samples
+        complete the output instants: the locked IMU source, else the lane's; -1 where not
+        known (any).  What the compiled UDP reader watches (:mod:`navd.core.udp_rx`)."""
+        imu_id = int(self._lane[hb.L_ID]) if self.lane else -1
+        lock = self.source_lock
+        src = lock.locked("imu") if lock is not None else None
+        if src is None:
+            src = self._lane_src
+        if isinstance(src, tuple) and len(src) == 2:
+            return int(src[0]), int(src[1]), imu_id
+        return -1, -1, imu_id
+
     def _lane_select(self, src: tuple[int, int]) -> bool:
         """Make ``src`` the lane's source if it is accepted and allowed (kept until another
         source's datagram comes: accepted sources stay accepted, ``allow`` is fixed)."""
