@@ -68,7 +68,8 @@ def test_the_stamp_of_a_highres_imu_frame_and_nothing_else() -> None:
     """GIVEN datagrams of MAVLink 1 and 2 HIGHRES_IMU frames, other messages, junk,
     THEN the stamp comes out of exactly one HIGHRES_IMU frame of the watched source (any
     source when not known), -1 for another source or IMU instance, -2 for the rest: two
-    frames in one datagram, a cut frame, a signed frame whose length is not the datagram's."""
+    frames in one datagram, a cut frame, a signed frame whose length is not the datagram's,
+    a stamp of 0 or past 2^53 us (which the decoder refuses too)."""
     any_src = _ctl([20_000])
     assert _stamp(_highres(123_456_789), any_src) == 123_456_789
     assert _stamp(_highres(2**40 + 7, imu_id=2), any_src) == 2**40 + 7
@@ -78,6 +79,9 @@ def test_the_stamp_of_a_highres_imu_frame_and_nothing_else() -> None:
     assert _stamp(_highres(5_000)[:-1], any_src) == -2
     assert _stamp(b"\xfd" * 40, any_src) == -2
     assert _stamp(b"", any_src) == -2
+    assert _stamp(_highres(2**53), any_src) == 2**53
+    assert _stamp(_highres(2**53 + 1), any_src) == -2  # its ns would not fit in an int64
+    assert _stamp(_highres(0), any_src) == -2
     watched = _ctl([20_000], 1, 1, 0)
     assert _stamp(_highres(7_000), watched) == 7_000
     assert _stamp(_highres(7_000, sysid=2), watched) == -1
@@ -333,6 +337,43 @@ def test_a_batch_waits_for_its_instant_and_no_longer_than_the_hold() -> None:
     assert 300 <= seen["held, ms"] < 1500, seen
     assert seen["fix, ms"] < 100, seen
     assert [len(d) for _, d, _ in rec.batches] == [1, 15, 5, 1]
+
+
+def test_a_slow_loop_loses_and_reorders_nothing() -> None:
+    """GIVEN the compiled reader handing on every datagram (each completes an instant) and
+    a loop that takes 30 ms over each of its first batches,
+    WHEN 150 datagrams arrive back to back meanwhile (fewer than the socket's default
+    buffer holds: a loss there would be the kernel's),
+    THEN the thread waits for its buffers to be given back: every datagram comes out once,
+    in order, intact."""
+    rec = _Recorder()
+    frames = [_highres(k * 20_000) for k in range(1, 151)]
+
+    async def main() -> None:
+        link, t = await _open(rec, True)
+        proto = t._protocol
+        inner = proto.batch_received
+
+        def slow(batch: RxBatch) -> None:
+            if len(rec.batches) < 5:
+                time.sleep(0.03)
+            inner(batch)
+
+        proto.batch_received = slow  # type: ignore[method-assign]
+        port = link.local_address[1] if link.local_address else 0
+        tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        for f in frames:
+            tx.sendto(f, ("127.0.0.1", port))
+        tx.close()
+        for _ in range(200):
+            await asyncio.sleep(0.01)
+            if sum(len(d) for _, d, _ in rec.batches) >= len(frames):
+                break
+        link.close()
+
+    asyncio.run(main())
+    assert [d for _, ds, _ in rec.batches for d in ds] == frames
+    assert [s[1] for s in rec.samples] == [k * 20_000 for k in range(1, 151)]
 
 
 def test_close_stops_the_thread_and_closes_its_descriptors() -> None:

@@ -25,9 +25,10 @@ are opened, owned and closed by :class:`navd.io.mavlink.link.PacedUdpTransport`.
 
 Hand-over (two buffers, alternating; ``meta[b]`` per buffer, see ``M_*``): the thread fills
 buffer ``b`` while its state is FREE, sets N, ARRIVED, SAME_ADDR, then READY, and writes 1
-to ``ready_fd``; it then fills ``b ^ 1`` as soon as that is FREE again (else it waits on
-``ctl_fd``). The loop takes READY buffers in order, sets them FREE and writes 1 to
-``ctl_fd``. Stop: ``ctl[C_STOP] = 1`` and a write to ``ctl_fd``.
+to ``ready_fd``; it then fills ``b ^ 1`` as soon as that is FREE again (else it sets WAITING
+and waits on ``ctl_fd``, 10 ms at most). The loop takes READY buffers in order, sets them
+FREE and, if WAITING, writes 1 to ``ctl_fd`` (a write per batch would wake a holding thread
+for nothing). Stop: ``ctl[C_STOP] = 1`` and a write to ``ctl_fd``.
 """
 
 from __future__ import annotations
@@ -63,7 +64,8 @@ M_STATE = 0  # FREE (the thread's) or READY (the loop's)
 M_N = 1  # datagrams
 M_ARRIVED = 2  # CLOCK_MONOTONIC (time.monotonic_ns) when the last one was read
 M_SAME_ADDR = 3  # 1: every datagram came from the first one's address
-META_SIZE = 4
+M_WAITING = 4  # 1: the thread waits for the loop to give this buffer back
+META_SIZE = 5
 FREE = 0
 READY = 1
 
@@ -82,6 +84,7 @@ _IDLE_POLL_MS = 1000  # nothing to hold: still look at ctl[C_STOP] this often
 _STX_V2 = 0xFD
 _STX_V1 = 0xFE
 _HIGHRES_ID = 105
+_MAX_T_US = 1 << 53  # as navd.core.highres_batch
 
 _poll: Any = types.ExternalFunction("poll", types.int32(types.voidptr, types.uint64, types.int32))
 _ppoll: Any = types.ExternalFunction(
@@ -149,7 +152,7 @@ def imu_stamp(buf: U8, p: int, size: int, ctl: I64) -> int:
     t = 0
     for q in range(7, -1, -1):
         t = (t << 8) | int(buf[pay + q])
-    if t < 0:  # above 2^63 us: not a stamp
+    if t <= 0 or t > _MAX_T_US:  # the decoder refuses these; ns of it must fit in int64
         return -2
     return t
 
@@ -280,6 +283,8 @@ def rx_loop(fd: int, ctl_fd: int, ready_fd: int, buf0: U8, buf1: U8, offs0: I64,
         addr = addr0 if b == 0 else addr1
         wait = -1  # ns; -1: wait for the socket or ctl_fd, with no hold
         if meta[b, M_STATE] != FREE:  # the loop still has it: wait to be told
+            # (should the loop miss the flag, the wait ends after 10 ms anyway)
+            meta[b, M_WAITING] = 1
             wait = 10_000_000
         elif until:
             wait = until - _now_ns(ts)
@@ -294,6 +299,7 @@ def rx_loop(fd: int, ctl_fd: int, ready_fd: int, buf0: U8, buf1: U8, offs0: I64,
             if p16[7] & _POLLIN:
                 _read(ctl_fd, drop.ctypes.data, 8)
             continue
+        meta[b, M_WAITING] = 0
         timeout = _IDLE_POLL_MS
         if k:
             left = first_ns + ctl[C_MAX_HOLD_NS] - _now_ns(ts)

@@ -640,9 +640,10 @@ class PacedUdpTransport(asyncio.DatagramTransport):
             finally:
                 batch.addrs = []  # a read on the loop (after a fallback) appends to it
                 meta[b, udp_rx.M_STATE] = udp_rx.FREE
+                if meta[b, udp_rx.M_WAITING]:
+                    os.eventfd_write(self._ctl_fd, 1)
                 b ^= 1
                 self._tb = b
-                os.eventfd_write(self._ctl_fd, 1)
         ctl = self._ctl
         dec = self._protocol.decoder
         if dec is not None:
