@@ -144,3 +144,16 @@ def stop_daemon(proc: subprocess.Popen[bytes], timeout_s: float = 20.0) -> int:
 
 def finite(*values: float) -> bool:
     return all(math.isfinite(v) for v in values)
+
+
+def send_paced(port: int, frames: list[bytes], period_s: float) -> None:
+    """Send ``frames`` to 127.0.0.1:``port``, one every ``period_s`` (catching up at once
+    when behind), from a fresh UDP socket."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    t0 = time.monotonic()
+    for k, f in enumerate(frames):
+        delay = t0 + k * period_s - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        s.sendto(f, ("127.0.0.1", port))
+    s.close()

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
+from daemon_util import send_paced
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from navd.io.mavlink import MavlinkDecoder, MavlinkInputConfig, MavlinkLink
@@ -116,17 +117,6 @@ def _imu_frames(n: int) -> list[bytes]:
     return out
 
 
-def _send_paced(port: int, frames: list[bytes], period_s: float) -> None:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    t0 = time.monotonic()
-    for k, f in enumerate(frames):
-        delay = t0 + k * period_s - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
-        s.sendto(f, ("127.0.0.1", port))
-    s.close()
-
-
 @pytest.mark.parametrize("paced", [True, False])
 def test_paced_udp_link_reads_everything_in_order_with_fewer_wake_ups(paced: bool) -> None:
     """GIVEN a navd udpin link receiving 1000 HIGHRES_IMU datagrams at 1 kHz,
@@ -159,7 +149,7 @@ def test_paced_udp_link_reads_everything_in_order_with_fewer_wake_ups(paced: boo
         if paced:
             assert link.pace_reads(ReadPacer([20_000], 10_000, 2_000))
         port = link.local_address[1] if link.local_address else 0
-        th = threading.Thread(target=_send_paced, args=(port, frames, 1e-3))
+        th = threading.Thread(target=send_paced, args=(port, frames, 1e-3))
         th.start()
         while th.is_alive():
             await asyncio.sleep(0.05)

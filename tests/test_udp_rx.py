@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from daemon_util import send_paced
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from navd.core import udp_rx
@@ -226,15 +227,11 @@ def _stream(n: int) -> list[bytes]:
     return out
 
 
-def _send(port: int, frames: list[bytes], period_s: float) -> None:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+async def _all_handed(rec: _Recorder, n: int, within_s: float) -> None:
+    """Wait until ``n`` datagrams were handed on (at most ``within_s``)."""
     t0 = time.monotonic()
-    for k, f in enumerate(frames):
-        delay = t0 + k * period_s - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
-        s.sendto(f, ("127.0.0.1", port))
-    s.close()
+    while sum(len(d) for _, d, _ in rec.batches) < n and time.monotonic() - t0 < within_s:
+        await asyncio.sleep(0.01)
 
 
 def _run_stream(threaded: bool, frames: list[bytes], period_s: float) -> _Recorder:
@@ -243,14 +240,11 @@ def _run_stream(threaded: bool, frames: list[bytes], period_s: float) -> _Record
     async def main() -> None:
         link, _ = await _open(rec, threaded)
         port = link.local_address[1] if link.local_address else 0
-        th = threading.Thread(target=_send, args=(port, frames, period_s))
+        th = threading.Thread(target=send_paced, args=(port, frames, period_s))
         th.start()
         while th.is_alive():
             await asyncio.sleep(0.02)
-        for _ in range(50):
-            await asyncio.sleep(0.02)
-            if sum(len(d) for _, d, _ in rec.batches) >= len(frames):
-                break
+        await _all_handed(rec, len(frames), 1.0)
         link.close()
 
     asyncio.run(main())
@@ -310,16 +304,18 @@ def test_a_batch_waits_for_its_instant_and_no_longer_than_the_hold() -> None:
                 await asyncio.sleep(0.005)
             return time.monotonic() - t0
 
-        tx.sendto(_highres(1000), ("127.0.0.1", port))
+        def send_ms(first: int, last: int) -> None:  # HIGHRES_IMU stamped first..last ms
+            for k in range(first, last + 1):
+                tx.sendto(_highres(k * 1000), ("127.0.0.1", port))
+
+        send_ms(1, 1)
         seen.append(("first, ms", round(1000 * await wait_for(1, 1.0))))
-        for k in range(2, 16):
-            tx.sendto(_highres(k * 1000), ("127.0.0.1", port))
+        send_ms(2, 15)
         await asyncio.sleep(0.15)
         seen.append(("before the instant", len(rec.batches)))
-        tx.sendto(_highres(20_000), ("127.0.0.1", port))
+        send_ms(20, 20)
         seen.append(("instant, ms", round(1000 * await wait_for(2, 1.0))))
-        for k in range(21, 26):
-            tx.sendto(_highres(k * 1000), ("127.0.0.1", port))
+        send_ms(21, 25)
         await asyncio.sleep(0.15)
         seen.append(("after 150 ms", len(rec.batches)))
         seen.append(("held, ms", round(1000 * (0.15 + await wait_for(3, 2.0)))))
@@ -365,10 +361,7 @@ def test_a_slow_loop_loses_and_reorders_nothing() -> None:
         for f in frames:
             tx.sendto(f, ("127.0.0.1", port))
         tx.close()
-        for _ in range(200):
-            await asyncio.sleep(0.01)
-            if sum(len(d) for _, d, _ in rec.batches) >= len(frames):
-                break
+        await _all_handed(rec, len(frames), 2.0)
         link.close()
 
     asyncio.run(main())

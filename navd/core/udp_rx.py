@@ -7,13 +7,17 @@ arrives, and wakes the event loop (an eventfd) only when the batch has to be han
 
 - a HIGHRES_IMU frame of the watched source whose stamp crosses a multiple of an output
   period: the sample completing an output instant (the outputs are due on the sinks' grids
-  of sensor time, :class:`navd.pipeline.OutputSchedule`), or whose stamp goes back;
-- any other datagram (a fix, a heartbeat, junk): the per-datagram path decides what it is,
-  as soon as the loop would have;
+  of sensor time, :class:`navd.pipeline.OutputSchedule`), or whose stamp goes back, or the
+  first one;
+- any other datagram (a fix, a heartbeat, junk, another IMU message): the per-datagram path
+  decides what it is, as soon as the loop would have;
 - the buffer is full, or its oldest datagram has waited ``max_hold_ns``.
 
-So the interpreter wakes about once per output instant instead of once per read, and the
-thread's own wake-ups cost a few microseconds of compiled code. Nothing is dropped or
+After a completing sample, a live sender's socket is left unread until ``margin_ns`` before
+the next instant's sample is due (:func:`hold_until`, the rule of
+:class:`navd.io.read_pacing.ReadPacer`), so the thread too wakes a few times per output
+period. The interpreter wakes about once per output instant instead of ~4 times, and the
+thread's wake-ups cost a few microseconds of compiled code each. Nothing is dropped or
 reordered: every datagram is handed on, in arrival order; only when is decided here. The
 frame is only looked at, not checked (no CRC): a wrong guess costs a wake-up or a wait of at
 most ``max_hold_ns``, never a sample; the decoder behind checks everything.
@@ -21,7 +25,8 @@ most ``max_hold_ns``, never a sample; the decoder behind checks everything.
 The kernel lives in ``navd.core`` only so that the install-time build compiles it with the
 estimator's kernels (a cold start must not wait for it); the socket and the two eventfds
 are opened, owned and closed by :class:`navd.io.mavlink.link.PacedUdpTransport`. Linux only
-(``poll``, ``recvfrom``, ``clock_gettime`` and ``errno`` called straight from libc).
+(``poll``, ``ppoll``, ``recvfrom``, ``read``, ``write``, ``clock_gettime`` and ``errno``
+called straight from libc).
 
 Hand-over (two buffers, alternating; ``meta[b]`` per buffer, see ``M_*``): the thread fills
 buffer ``b`` while its state is FREE, sets N, ARRIVED, SAME_ADDR, then READY, and writes 1

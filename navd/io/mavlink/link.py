@@ -439,6 +439,11 @@ class PacedUdpTransport(asyncio.DatagramTransport):
     taken off the loop and read again when the hold ends: at 1 kHz the loop wakes a few
     times per output period instead of once per datagram.  Without ``hold_us`` every
     datagram is read as it arrives, as by the loop's own transport.
+
+    Or (:meth:`read_in_thread`, the daemon's default on Linux) a thread of compiled code
+    (:mod:`navd.core.udp_rx`) reads the socket and the loop only takes the batches it hands
+    on (``_ready``), through the same ``batch_received``: about one wake-up of the loop
+    per output instant.
     """
 
     def __init__(self, loop: asyncio.AbstractEventLoop, sock: socket.socket,
@@ -650,6 +655,9 @@ class PacedUdpTransport(asyncio.DatagramTransport):
             ctl[udp_rx.C_SYS], ctl[udp_rx.C_COMP], ctl[udp_rx.C_ID] = dec.watched_imu()
         errors = int(ctl[udp_rx.C_ERRORS])
         if errors != self._errors_seen:
+            # the last one goes the usual way; the ones before it are counted as it counts
+            if errors - self._errors_seen > 1:
+                self._protocol.counters.inc("link_error", errors - self._errors_seen - 1)
             self._errors_seen = errors
             e = int(ctl[udp_rx.C_ERRNO])
             self._protocol.error_received(OSError(e, os.strerror(e)))
