@@ -230,8 +230,9 @@ def test_take_off_skips_handling_on_the_ground_and_flight_ends_at_a_crash() -> N
     5 s (10 deg/s spread), at rest again, flying from 30 s (8 deg/s spread, one quiet 1 s
     window at 40 s), a 1500 deg/s tumble at 70 s,
     WHEN the flight window is found,
-    THEN take-off is 30 s (the handling at 5 s is followed by rest), the end is the crash
-    at 70 s, and times count from the given log start (1 s before the first sample)."""
+    THEN take-off is 30 s (the handling at 5 s is followed by rest), the end is the crash's
+    onset 1 s before the tumble's first 1500 deg/s sample (69 s), and times count from the
+    given log start (1 s before the first sample)."""
     rng = np.random.default_rng(1)
     t = np.arange(0, 80_000_000, 10_000, dtype=np.int64) + 1_000_000
     ts = (t - t[0]) * 1e-6
@@ -244,6 +245,6 @@ def test_take_off_skips_handling_on_the_ground_and_flight_ends_at_a_crash() -> N
     inc[1:, :3] = rates[1:] * 0.01  # increments over the 10 ms intervals
     win = flight_window(t, inc, 0)
     assert win.from_s == pytest.approx(31.0, abs=0.011)
-    assert win.to_s == pytest.approx(71.0, abs=0.011)
-    assert win.mask(np.array([30_500_000, 32_000_000, 70_000_000, 72_000_000])).tolist() == [
+    assert win.to_s == pytest.approx(70.0, abs=0.011)
+    assert win.mask(np.array([30_500_000, 32_000_000, 69_900_000, 70_100_000])).tolist() == [
         False, True, True, False]

@@ -10,8 +10,10 @@ In flight (times in s from the log's start, the earliest IMU or reference time s
   the vehicle was handled on the ground (:func:`takeoff_s`).  A vehicle carried about by
   hand before a hand launch (the X8) counts as flying from then on; a caller may fix the
   start instead (the X8 benchmark row: 20 s, after its launch at 16.5 s);
-* to a **crash**: the first sample whose body rate exceeds CRASH_RATE_DPS (1000 deg/s, a rate
-  no vehicle flies at but a tumble reaches: log171 hits 2042 deg/s), else the end of the log.
+* to a **crash**: CRASH_LEAD_S (1 s) before the first sample whose body rate exceeds
+  CRASH_RATE_DPS (1000 deg/s, a rate no vehicle flies at but a tumble reaches: log171 hits
+  2042 deg/s), else the end of the log.  The tumble builds up before it reaches that rate
+  (log171: 100-280 deg/s in the 0.5 s before), and a 10 Hz reference cannot follow it.
 
 Errors are estimate minus reference, wrapped to [-180, 180) deg, at the solution's instants
 that have a reference sample within 0.1 s; the reference is the autopilot's own estimate
@@ -39,12 +41,17 @@ REST_LOOKAHEAD_S = 10
 # a body rate no vehicle flies at, but a tumbling crash reaches (a consumer gyro's range is
 # 2000 deg/s; the real logs fly below 200 deg/s, log171 hits 2042 deg/s in its crash)
 CRASH_RATE_DPS = 1000.0
+# ... and the tumble into it has begun this long before (s): log171's rate climbs from 11 to
+# 2042 deg/s in the 0.6 s before; scoring that last half second against ATT (10 Hz, and an
+# estimator of its own losing the attitude) took its roll RMS from 1.57 to 1.96 deg, while
+# ending 0.25-2 s before gives 1.56-1.57 deg (docs/results.md, "The crash's onset")
+CRASH_LEAD_S = 1.0
 REFERENCE_MAX_GAP_US = 100_000
 
 FLIGHT_RULE = (f"take-off: the first 1 s with gyro-rate spread > {TAKEOFF_RATE_SPREAD_DPS:g} "
                f"deg/s not followed within {REST_LOOKAHEAD_S} s by {REST_RUN_S} s at rest "
-               f"(< {REST_SPREAD_DPS:g} deg/s); end: a crash (the first body rate > "
-               f"{CRASH_RATE_DPS:g} deg/s) or the end of the log")
+               f"(< {REST_SPREAD_DPS:g} deg/s); end: a crash ({CRASH_LEAD_S:g} s before the "
+               f"first body rate > {CRASH_RATE_DPS:g} deg/s) or the end of the log")
 
 
 def imu_rates(imu_t_us: I64, imu_inc: F64) -> tuple[I64, F64]:
@@ -59,9 +66,10 @@ def imu_rates(imu_t_us: I64, imu_inc: F64) -> tuple[I64, F64]:
 
 
 def crash_s(t_us: I64, rates_rps: F64) -> float:
-    """Time (s from ``t_us[0]``) of the first sample whose body rate exceeds CRASH_RATE_DPS,
-    NaN if none: flight ends there (what follows is a tumble and a vehicle on the ground,
-    not flight; log171 ends upside down).
+    """Time (s from ``t_us[0]``) at which a crash begins: CRASH_LEAD_S before the first sample
+    whose body rate exceeds CRASH_RATE_DPS (not before ``t_us[0]``), NaN if none: flight ends
+    there (what follows is a tumble and a vehicle on the ground, not flight; log171 ends
+    upside down).
 
     Args:
         t_us: (N,) sample times, us.
@@ -69,7 +77,9 @@ def crash_s(t_us: I64, rates_rps: F64) -> float:
     """
     hit = np.nonzero(np.sqrt(np.sum(rates_rps * rates_rps, axis=1)) * RAD2DEG
                      > CRASH_RATE_DPS)[0]
-    return float((t_us[hit[0]] - t_us[0]) * 1e-6) if hit.size else math.nan
+    if not hit.size:
+        return math.nan
+    return max(0.0, float((t_us[hit[0]] - t_us[0]) * 1e-6) - CRASH_LEAD_S)
 
 
 def window_spreads_dps(t_us: I64, rates_rps: F64) -> F64:
