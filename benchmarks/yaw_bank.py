@@ -35,7 +35,8 @@ never aligned on any seed); 0 false alignments; heading RMS <= 2 deg (multirotor
 ``--real`` adds the recorded flights (robustness.REAL_LOGS, ``../shared/data``): time from
 take-off (or the log's flight start) and from the first GNSS horizontal acceleration >= 1 m/s^2
 to aligned, heading vs the onboard (magnetometer-aided) yaw over aligned in-flight instants,
-roll/pitch vs onboard in flight.  The onboard attitude is an estimate, not truth.
+roll/pitch vs onboard in flight (take-off to a crash's onset: navd.eval.flight).  The onboard
+attitude is an estimate, not truth.
 
     python benchmarks/yaw_bank.py [--seeds 100] [--scenarios a,b] [--real] [--json PATH]
                                   [--jobs 2] [--set SCENARIO_KEY=V] [--config NAVD_KEY=V]
@@ -336,8 +337,9 @@ def score_real(spec: rb.RealLog, config: Sequence[str] = ()) -> dict[str, Any]:
     a = np.array(rows)
     t_us = a[:, 0].astype(np.int64)
     t0 = int(min(data.imu_t_us[0], ref.t_us[0]))
-    start_s = rb.flight_window(data.imu_t_us, data.imu_inc, t0,
-                               spec.flight_from_s if spec.flight_from_s > 0.0 else None).from_s
+    win = rb.flight_window(data.imu_t_us, data.imu_inc, t0,
+                           spec.flight_from_s if spec.flight_from_s > 0.0 else None)
+    start_s = win.from_s
     start_us = t0 + round(start_s * 1e6) if math.isfinite(start_s) else t0
     man_us = gnss_manoeuvre_s(data.gnss_t_us, data.gnss[:, 3:5], start_us)
     err, near = rb.reference_errors(t_us, a[:, 1:4],
@@ -345,7 +347,8 @@ def score_real(spec: rb.RealLog, config: Sequence[str] = ()) -> dict[str, Any]:
     e = err * RAD2DEG
     sd = a[:, 4:7] * RAD2DEG
     aligned = a[:, 7] > 0.5
-    fly = near & (t_us >= start_us)
+    # from take-off to a crash's onset, if any (the rule robustness.py and the replay use)
+    fly = near & (t_us >= start_us) & ~(t_us >= t0 + win.to_s * 1e6)
     al_fly = fly & aligned
     t_al = int(t_us[np.argmax(aligned)]) if aligned.any() else -1
     rec.update({
