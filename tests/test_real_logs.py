@@ -59,9 +59,9 @@ def test_log171_replays_as_the_multirotor_it_says_it_is(tmp_path: Path) -> None:
     over more than 7000 rows, and navd's roll and pitch σ cover their difference from ATT:
     |difference| > 3σ in at most 5 % of the flight's rows (the issue-14 target).
 
-    Measured 1.57 / 0.63 deg (1.96 / 0.80 while the window still held the last 0.5 s of the
-    tumble into the crash, navd.eval.flight.CRASH_LEAD_S), beyond 3σ 0.0 / 0.0 %
-    (robustness.py; 1.98 / 0.78 deg then), since the attitude
+    Measured 1.57 / 0.63 deg, beyond 3σ 0.0 / 0.0 % (robustness.py; 1.96 / 0.80 deg while
+    the window still held the last 0.5 s of the tumble into the crash,
+    navd.eval.flight.CRASH_LEAD_S), since the attitude
     variance carries the sampling error of the log's 50 Hz point-sampled rates
     (navd.core.kalman.imu_step) and the fixes are moved by the log's own EKF_VEL_DELAY
     (200 ms; docs/results.md, "Point-sampled rates"); before both 3.57 / 2.46 deg with
@@ -70,7 +70,7 @@ def test_log171_replays_as_the_multirotor_it_says_it_is(tmp_path: Path) -> None:
     about 10 %.  The 1.5 deg expectation is not met on roll: a roll offset of -1.05 deg
     remains in flight, with navd's y accelerometer-bias estimate moving by -10 mg at the end
     of a leg (107-109 s); ATT's attitude (and AHR2's) needs the accelerometer's ground
-    calibration only (docs/results.md, "log171's roll offset")."""
+    calibration only (docs/results.md, "log171's remaining roll")."""
     err, m = _replay(LOG171, tmp_path, "--reference-out", str(tmp_path / "ref.csv"))
     assert ("profile multirotor from the log's vehicle type (firmware APM:Copter V3.3-dev "
             "(ae3192b8)); --set filter.profile=... to override") in err, err[-3000:]
