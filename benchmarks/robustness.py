@@ -501,6 +501,7 @@ def reference_gyro_corr(imu_t_us: npt.NDArray[np.int64], rates_rps: Arr,
 def score_log(spec: RealLog, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
     """Replay one real log with the default config (plus ``overrides``: experiments); a row
     dict (``reason`` when no figures)."""
+    from navd.cli.replay import log_lever_arm
     from navd.io.logs import LogFormatError, LogOptions, read_log
 
     rec: dict[str, Any] = {"case": spec.name, "what": str(spec.path), "profile": spec.profile,
@@ -510,7 +511,10 @@ def score_log(spec: RealLog, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
     except (OSError, LogFormatError, ValueError) as exc:
         rec["reason"] = f"cannot read: {exc}"
         return rec
-    est = build_estimator(load_config(None, [f"filter.profile={spec.profile}", *overrides]))
+    # the antenna position a log states, as `navd replay --log` takes it (none of ours does)
+    tables, _ = log_lever_arm(load_config(None, [f"filter.profile={spec.profile}",
+                                                 *overrides]), data.lever_arm_m)
+    est = build_estimator(tables)
     g = GnssOutcomes()
     rows = []
     for sol in solutions(est, tap_gnss(est, data.samples(), g), 50.0):

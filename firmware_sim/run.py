@@ -207,7 +207,8 @@ def generate(scenario: Scenario, seed: int, progress: bool = False) -> SimRun:
         inc, err = corrupt_imu(truth.inc, dt_s, scenario.imu, seed)
         bar.update()
         bar.set_postfix_str(stages[3])
-        gnss, gidx = simulate_gnss(t_us, truth.pos, truth.vel_n, T0_US, scenario.gnss, seed)
+        gnss, gidx = simulate_gnss(t_us, truth.pos, truth.vel_n, T0_US, scenario.gnss, seed,
+                                   truth.mat_nb, truth.inc)
         pol = None
         if scenario.polarization.enabled:
             from firmware_sim.polarization import simulate_polarization

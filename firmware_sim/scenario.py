@@ -310,6 +310,11 @@ class GnssSpec:
     jumps: JumpSpec = field(default_factory=JumpSpec)
     vel_noise_scale: float = _f("", 1.0, "true velocity noise / reported velocity accuracy")
     pos_steps: tuple[PosStepSpec, ...] = _f("s, m", ())
+    # The antenna off the IMU: the receiver measures the antenna's position and velocity,
+    # p + C l and v + C (w x l), which a filter told a lever arm of zero must explain some
+    # other way while the vehicle turns.
+    lever_arm_m: tuple[float, ...] = _f("m", (0.0, 0.0, 0.0),
+                                        "antenna position x y z from the IMU, body FRD")
 
 
 @dataclass(frozen=True)
@@ -639,6 +644,7 @@ def _validate(sc: Scenario) -> None:
     _check(g.vel_noise_scale >= 0.0, "gnss.vel_noise_scale", "must be >= 0")
     for i, st in enumerate(g.pos_steps):
         _check(st.end_s > st.start_s, f"gnss.pos_steps[{i}].end_s", "must be > start_s (s)")
+    _check(len(g.lever_arm_m) == 3, "gnss.lever_arm_m", "needs 3 values (x, y, z)")
     j = g.jumps
     _check(j.bursts >= 0, "gnss.jumps.bursts", "must be >= 0")
     _check(1 <= j.min_epochs <= j.max_epochs, "gnss.jumps.min_epochs",

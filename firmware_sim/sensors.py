@@ -229,17 +229,21 @@ GNSS_COLUMNS = ("t_us", "lat_deg", "lon_deg", "alt_m", "vel_n", "vel_e", "vel_d"
 
 
 def simulate_gnss(t_us: npt.NDArray[np.int64], pos: Arr, vel_n: Arr, t0_us: int,
-                  spec: GnssSpec, seed: int) -> tuple[dict[str, npt.NDArray[Any]],
-                                                      npt.NDArray[np.int64]]:
-    """GNSS epochs sampled from the truth.
+                  spec: GnssSpec, seed: int, mat_nb: Arr | None = None,
+                  inc: Arr | None = None) -> tuple[dict[str, npt.NDArray[Any]],
+                                                   npt.NDArray[np.int64]]:
+    """GNSS epochs sampled from the truth, at the antenna (``spec.lever_arm_m``).
 
     Args:
         t_us: (N+1,) truth sample times, us; the GNSS epochs are a subset of them.
-        pos: (N+1, 3) truth lat_rad, lon_rad, alt_m.
-        vel_n: (N+1, 3) truth NED velocity, m/s.
+        pos: (N+1, 3) truth lat_rad, lon_rad, alt_m (of the IMU).
+        vel_n: (N+1, 3) truth NED velocity, m/s (of the IMU).
         t0_us: time of the first truth sample, us.
         spec: receiver model.
         seed: run seed.
+        mat_nb: (N+1, 3, 3) truth C_b^n; inc: (N, 6) truth increments (dtheta first, rad;
+            interval k runs k -> k+1): needed for a non-zero lever arm, whose antenna
+            velocity uses the body rate of the interval ending at the epoch.
 
     Returns:
         The gnss.csv columns (see :data:`GNSS_COLUMNS`) and the (M,) truth index of each epoch.
@@ -282,10 +286,18 @@ def simulate_gnss(t_us: npt.NDArray[np.int64], pos: Arr, vel_n: Arr, t0_us: int,
     r_n = np.empty_like(lat_t)
     for i, la in enumerate(lat_t):
         r_m[i], r_n[i] = radii(float(la))
+    vel = vel_n[idx] + nvel + jump
+    lever = np.asarray(spec.lever_arm_m, dtype=np.float64)
+    if np.any(lever != 0.0):
+        if mat_nb is None or inc is None:
+            raise ValueError("a GNSS lever arm needs the truth attitude and increments")
+        c = mat_nb[idx]
+        rate = inc[idx - 1, :3] / ((t_us[1] - t_us[0]) * 1e-6)
+        npos = npos + c @ lever  # the antenna's NED offset from the IMU
+        vel = vel + np.einsum("kij,kj->ki", c, np.cross(rate, lever))
     lat = lat_t + npos[:, 0] / (r_m + alt_t)
     lon = p[:, 1] + npos[:, 1] / ((r_n + alt_t) * np.cos(lat_t))
     alt = alt_t - npos[:, 2]
-    vel = vel_n[idx] + nvel + jump
     # ECEF velocity rotated at the reported position, as the receiver's own NED <-> ECEF is
     vel_e = np.einsum("kji,kj->ki", mats_ne(lat, lon), vel)
     ecef = np.array([geodetic_to_ecef(float(a), float(b), float(c))

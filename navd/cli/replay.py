@@ -398,6 +398,10 @@ def _replay_log(a: argparse.Namespace) -> int:
         print(f"navd replay: note: {note}", file=sys.stderr)
     if data.damage is not None:
         print(f"navd replay: WARNING: {data.damage}", file=sys.stderr)
+    tables, said = log_lever_arm(tables, data.lever_arm_m)
+    if said:
+        nav = DaemonConfig.from_dict(tables, need_input=False).nav
+        print(f"navd replay: {said}", file=sys.stderr)
     vehicle, vehicle_from = data.vehicle, data.vehicle_from
     if not vehicle and not vehicle_from:
         vehicle, vehicle_from = infer_vehicle(data.gnss_t_us, data.gnss)
@@ -426,6 +430,26 @@ def _replay_log(a: argparse.Namespace) -> int:
         print("navd replay: no roll/pitch RMS: the log carries no onboard attitude to compare "
               "with", file=sys.stderr)
     return _exit_code(rows, est)
+
+
+def log_lever_arm(tables: dict[str, Any], lever: tuple[float, float, float] | None
+                  ) -> tuple[dict[str, Any], str]:
+    """The config tables with ``[gnss] lever_arm_m`` taken from the log where it states the
+    antenna's position (LogData.lever_arm_m) and the user set none (``--set`` or
+    ``--config`` always stands), and the line that says so ("" when nothing changed)."""
+    if lever is None:
+        return tables, ""
+    gnss = tables.get("gnss")
+    if isinstance(gnss, dict) and "lever_arm_m" in gnss:
+        return tables, (f"gnss.lever_arm_m as set; note: the log states ({lever[0]:.3f}, "
+                        f"{lever[1]:.3f}, {lever[2]:.3f}) m")
+    chosen = copy.deepcopy(tables)
+    g = chosen.setdefault("gnss", {})
+    if not isinstance(g, dict):
+        return tables, ""
+    g["lever_arm_m"] = [float(v) for v in lever]
+    return chosen, (f"gnss.lever_arm_m = [{lever[0]:.3f}, {lever[1]:.3f}, {lever[2]:.3f}] "
+                    "from the log")
 
 
 def log_profile(tables: dict[str, Any], nav: NavConfig, vehicle: str, vehicle_from: str

@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, TextIO
@@ -278,9 +278,11 @@ class SampleBuilder:
 
     def build(self, fmt: str, path: str, reference: Reference,
               damage: LogDamage | None = None, notes: list[str] | None = None,
-              t_end_us: int | None = None, vehicle: tuple[str, str] = ("", "")) -> LogData:
+              t_end_us: int | None = None, vehicle: tuple[str, str] = ("", ""),
+              lever_arm: tuple[tuple[float, float, float], str] | None = None) -> LogData:
         """The LogData of what was added.  ``vehicle``: (navd profile or "", what in the
-        log states the vehicle type or "") (see :attr:`LogData.vehicle`)."""
+        log states the vehicle type or "") (see :attr:`LogData.vehicle`); ``lever_arm``:
+        (antenna position relative to the IMU, what states it) or None."""
         imu_t = np.asarray(self._imu_t, dtype=np.int64)
         imu_dt = np.asarray(self._imu_dt, dtype=np.int64)
         imu_v = np.asarray(self._imu_v, dtype=np.float64).reshape(-1, 6)
@@ -300,8 +302,59 @@ class SampleBuilder:
         if skipped:
             all_notes.append("records dropped while reading: " + ", ".join(
                 f"{k}={v}" for k, v in sorted(skipped.items())))
+        lever, lever_from = lever_arm if lever_arm is not None else (None, "")
+        if lever is not None:
+            all_notes.append(f"GNSS antenna at ({lever[0]:.3f}, {lever[1]:.3f}, "
+                             f"{lever[2]:.3f}) m from the IMU (body FRD): {lever_from}; "
+                             "--set gnss.lever_arm_m=... overrides")
         return LogData(fmt, path, imu_t, imu_dt, imu_v, gnss_t, gnss_v, gnss_fix, ref, damage,
-                       all_notes, vehicle[0], vehicle[1])
+                       all_notes, vehicle[0], vehicle[1], lever, lever_from)
+
+
+# An antenna or IMU position beyond this from the body origin (m) is not a setting of a
+# vehicle navd runs on (ArduPilot allows -5..5 m): refused as a garbled parameter.
+LEVER_ARM_MAX_M = 10.0
+
+
+def lever_arm_from_params(params: Mapping[str, float],
+                          antenna: Sequence[tuple[str, str, str]],
+                          imu: Sequence[tuple[str, str, str]]
+                          ) -> tuple[tuple[float, float, float], str] | None:
+    """The GNSS antenna's position relative to the IMU (body FRD, m) from an autopilot's
+    parameters: the first complete ``antenna`` name triple found in ``params`` minus the
+    first complete ``imu`` triple (zero when none).  Autopilots give both positions from the
+    body origin (ArduPilot ``GPS_POS1_X``.. / ``GPS1_POS_X``.., ``INS_POS1_X``..; PX4
+    ``EKF2_GPS_POS_X``.., ``EKF2_IMU_POS_X``..); navd's ``[gnss] lever_arm_m`` is from the
+    IMU.  None when no antenna triple is there, a value is not finite or beyond
+    LEVER_ARM_MAX_M, or the difference is zero (the default: nothing stated).
+
+    Why it matters: an antenna off the IMU moves at w x l while the vehicle turns; with the
+    lever arm unknown the filter explains that velocity by accelerometer bias and tilt
+    (log171: a yaw at 55 deg/s, 0.2 m of lateral offset worth ~1 deg of roll; docs/results.md).
+    """
+    def triple(names: Sequence[tuple[str, str, str]]) -> tuple[list[float], str] | None:
+        for trio in names:
+            if all(n in params for n in trio):
+                try:
+                    v = [float(params[n]) for n in trio]
+                except (TypeError, ValueError):
+                    return None
+                return v, f"{trio[0][:-1]}*"
+        return None
+
+    ant = triple(antenna)
+    if ant is None:
+        return None
+    ins = triple(imu)
+    vals = ant[0] + (ins[0] if ins is not None else [])
+    if not all(math.isfinite(v) and abs(v) <= LEVER_ARM_MAX_M for v in vals):
+        return None
+    base = ins[0] if ins is not None else [0.0, 0.0, 0.0]
+    lever = (ant[0][0] - base[0], ant[0][1] - base[1], ant[0][2] - base[2])
+    if lever == (0.0, 0.0, 0.0):
+        return None
+    said = f"parameters {ant[1]}" + (f" minus {ins[1]}" if ins is not None else "")
+    return lever, said
 
 
 def _quiet_logger() -> logging.Logger:
@@ -325,6 +378,9 @@ class LogData:
         ("multirotor", "fixed_wing", "ground"), "" when it states none or one no profile
         fits; vehicle_from: what in the log states it ("" when nothing does), e.g.
         "firmware APM:Copter V3.3-dev (ae3192b8)" or "parameter MAV_TYPE 2 (QUADROTOR)".
+    lever_arm_m: the GNSS antenna's position relative to the IMU, body FRD, m, where the
+        log's parameters state a non-zero one (:func:`lever_arm_from_params`), else None;
+        lever_arm_from: the parameters it came from ("" when None).
     """
 
     fmt: str
@@ -340,6 +396,8 @@ class LogData:
     notes: list[str] = field(default_factory=list)
     vehicle: str = ""
     vehicle_from: str = ""
+    lever_arm_m: tuple[float, float, float] | None = None
+    lever_arm_from: str = ""
 
     @property
     def n_samples(self) -> int:

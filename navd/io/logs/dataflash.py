@@ -38,7 +38,10 @@ Messages (pymavlink applies the format multipliers, so values are in the units b
     PARM  also the autopilot's GNSS latency setting, when options.gnss_delay_s is None:
           ``EKF_VEL_DELAY``, else ``EKF_POS_DELAY`` (EKF1, ArduPilot <= 3.4), else
           ``GPS_DELAY_MS`` (> 0; 0 means the driver's default, not stated) in ms; the fixes
-          are moved that much earlier (GPS TimeUS is when the fix reached the autopilot).
+          are moved that much earlier (GPS TimeUS is when the fix reached the autopilot);
+          and the antenna's and the IMU's positions (``GPS1_POS_X/Y/Z``, before 4.6
+          ``GPS_POS1_X/Y/Z``; ``INS_POS1_X/Y/Z``; m, FRD, from the body origin): their
+          difference is LogData.lever_arm_m (ArduCopter 3.3 has neither).
 
 Damage: messages are read in sequence and the offset of each is checked; the first skipped
 bytes (no 0xA3 0x95 header where a message should start, or an unknown type) or a message cut
@@ -67,6 +70,7 @@ from navd.io.logs.common import (
     LogOptions,
     Reference,
     SampleBuilder,
+    lever_arm_from_params,
 )
 from navd.types import FixType, GnssSample
 from navd.units import DEG
@@ -239,6 +243,9 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
     firmware = ""  # the MSG naming the vehicle firmware ("APM:Copter V3.3-dev", "ArduPlane")
     trim = [0.0, 0.0]  # AHRS_TRIM_X, AHRS_TRIM_Y (rad): the vehicle body against the IMU's
     delays: dict[str, float] = {}  # the autopilot's GNSS latency settings (ms), by name
+    antenna, ins = _position_params(opts)
+    positions: dict[str, float] = {}  # antenna and IMU position parameters (m), by name
+    wanted = {n for trio in (*antenna, *ins) for n in trio}
     data_len = int(r.data_len)
     try:
         with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
@@ -313,6 +320,8 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
                     val = float(m.Value)
                     if math.isfinite(val) and 0.0 < val <= _MAX_DELAY_MS:
                         delays[str(m.Name)] = val
+                elif name == "PARM" and str(getattr(m, "Name", "")) in wanted:
+                    positions[str(m.Name)] = float(m.Value)
                 elif name == "MSG" and not firmware:
                     text = str(getattr(m, "Message", ""))
                     if any(v in text for v in _VEHICLES):
@@ -398,4 +407,16 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
         r.data_map.close()
         r.filehandle.close()
     return b.build("dataflash", p, ref, damage, notes,
-                   vehicle=vehicle_from_firmware(firmware))
+                   vehicle=vehicle_from_firmware(firmware),
+                   lever_arm=lever_arm_from_params(positions, antenna, ins))
+
+
+def _position_params(opts: LogOptions) -> tuple[list[tuple[str, str, str]],
+                                                list[tuple[str, str, str]]]:
+    """The parameter names of the chosen receiver's antenna position (ArduPilot 4.6+
+    ``GPS1_POS_X``, earlier ``GPS_POS1_X``; instance k is k + 1) and of the chosen IMU's
+    position (``INS_POS1_X``), m from the body origin, FRD."""
+    g, i = opts.gnss_instance + 1, opts.imu_instance + 1
+    antenna = [(f"GPS{g}_POS_X", f"GPS{g}_POS_Y", f"GPS{g}_POS_Z"),
+               (f"GPS_POS{g}_X", f"GPS_POS{g}_Y", f"GPS_POS{g}_Z")]
+    return antenna, [(f"INS_POS{i}_X", f"INS_POS{i}_Y", f"INS_POS{i}_Z")]

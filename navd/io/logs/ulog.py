@@ -32,6 +32,8 @@ mixed):
                         ``vehicle_type`` (1 rotary wing, 2 fixed wing, 3 rover; the most
                         common value in the log) or, before PX4 1.9, ``is_rotary_wing``
                         (true: rotorcraft; false says nothing: a plane or a rover).
+    antenna position    (LogData.lever_arm_m) the parameters ``EKF2_GPS_POS_X/Y/Z`` minus
+                        ``EKF2_IMU_POS_X/Y/Z`` (m, FRD, from the body origin).
 
 Damage: before pyulog parses, the message framing (3-byte header: uint16 size, uint8 type)
 is walked from offset 16; the first unknown message type, data message for an unsubscribed
@@ -59,6 +61,7 @@ from navd.io.logs.common import (
     LogOptions,
     Reference,
     SampleBuilder,
+    lever_arm_from_params,
     vehicle_from_mav_type,
 )
 from navd.types import FixType, GnssSample, ImuSample
@@ -70,6 +73,9 @@ _HDR = struct.Struct("<HB")
 TOPICS = ("sensor_combined", "sensor_accel", "sensor_gyro", "vehicle_gps_position",
           "sensor_gps", "vehicle_attitude", "vehicle_status")
 # vehicle_status.vehicle_type (PX4 >= 1.9): ROTARY_WING 1, FIXED_WING 2, ROVER 3
+# the antenna's and the IMU's position parameters (m from the body origin, FRD)
+_ANTENNA = [("EKF2_GPS_POS_X", "EKF2_GPS_POS_Y", "EKF2_GPS_POS_Z")]
+_IMU_POS = [("EKF2_IMU_POS_X", "EKF2_IMU_POS_Y", "EKF2_IMU_POS_Z")]
 _VEHICLE_TYPE = {1: ("multirotor", "ROTARY_WING"), 2: ("fixed_wing", "FIXED_WING"),
                  3: ("ground", "ROVER")}
 
@@ -339,4 +345,6 @@ def read_ulog(path: str | Path, options: LogOptions | None = None) -> LogData:
     out = sink.getvalue().strip()
     if out:
         notes.append("pyulog: " + out.replace("\n", "; "))
-    return b.build("ulog", p, ref, damage, notes, vehicle=_vehicle(ulog))
+    params = getattr(ulog, "initial_parameters", {}) or {}
+    return b.build("ulog", p, ref, damage, notes, vehicle=_vehicle(ulog),
+                   lever_arm=lever_arm_from_params(params, _ANTENNA, _IMU_POS))
