@@ -5,7 +5,7 @@ defaults plus the scenario's natural ``filter.profile`` (ground for cars, multir
 multirotor scenario, fixed_wing for the X8), never the simulated IMU's own figures.  Simulated
 cases are overrides of the built-in scenarios (car480: 480 s at 10-24 m/s; multirotor: 240 s;
 drive_long: 1200 s with stops and outages), full length: nothing is shortened, since the
-default settings (20 cases x 5 seeds, the three multirotor cases and noise_x3 x 20, + 4
+default settings (21 cases x 5 seeds, the three multirotor cases and noise_x3 x 20, + 4
 logs) take about 2.5 minutes on 2 cores (142 s on 2026-11-27; numba's compiled code cached,
 the first run ever compiles for about a minute more).
 
@@ -140,6 +140,9 @@ def _car_speeds(lo: float, hi: float) -> list[dict[str, float]]:
             for i, (t, d) in enumerate(times)]
 
 
+# an antenna on a car's roof, the IMU in its cabin (body FRD, m): 1.6 m, never measured
+LEVER_1_6M = (-1.0, 0.3, -1.2)
+
 CASES: tuple[Case, ...] = (
     Case("car_clean", "car480", "ground", "car480 as shipped (sideslip 0)", "clean"),
     Case("mr_clean", "multirotor", "multirotor", "multirotor as shipped", "clean",
@@ -190,6 +193,9 @@ CASES: tuple[Case, ...] = (
          overrides={"gnss.rate_hz": 5.0}),
     Case("outage_60s", "car480", "ground", "no GNSS fix in [200, 260) s",
          overrides={"gnss.dropouts": [{"start_s": 200.0, "end_s": 260.0}]}),
+    Case("lever_1.6m", "car480", "ground",
+         "GNSS antenna 1 m behind, 0.3 m right of, 1.2 m above the IMU; lever arm not set",
+         overrides={"gnss.lever_arm_m": list(LEVER_1_6M)}),
     Case("jump_500m", "car480", "ground",
          "from 240 s on every fix is 500 m north of the truth (one lasting jump)",
          overrides={"gnss.pos_steps": [{"start_s": 240.0, "end_s": 1e9, "north_m": 500.0}]}),

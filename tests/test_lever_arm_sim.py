@@ -37,20 +37,48 @@ def _tilt_after_60s(lever: list[float] | None, config: tuple[str, ...]) -> tuple
     return float(np.sqrt(np.mean(e * e))), float(np.mean(np.abs(e) > 3.0 * sd))
 
 
-def test_configured_lever_arm_takes_the_antenna_motion_out() -> None:
+def test_lever_arm_configured_or_uncertain_keeps_the_antenna_motion_out() -> None:
     """GIVEN the multirotor scenario with a quiet IMU (VRW 0.005 m/s/sqrt(s)) and six 60 deg/s
     yaws, flown with the antenna at the IMU and at (0, -0.3, -0.2) m from it,
-    WHEN each is run with the default config, the second with and without
-    `gnss.lever_arm_m=[0,-0.3,-0.2]`,
-    THEN with the lever arm configured the tilt RMS after 60 s is within 1.5x (+0.01 deg) of
-    the antenna-at-the-IMU run's; left at zero it is over 2x that, and every run's tilt
-    stays within 3 sigma in at least 95 % of instants.
+    WHEN the second is run with the lever arm configured (1-sigma 0.05 m), with the default
+    config (lever arm 0 with its default 1-sigma of 0.5 m), and with the lever arm 0 trusted
+    (`gnss.lever_arm_sd_m=0`),
+    THEN configured and default both keep the tilt RMS after 60 s within 1.5x (+0.01 deg) of
+    the antenna-at-the-IMU run's; the trusted zero is over 2x the configured one; every run's
+    tilt stays within 3 sigma in at least 95 % of instants.
 
-    Measured (seed 1): at the IMU 0.043 deg, lever arm configured 0.046, left at zero 0.123;
-    seeds 2-5: 0.016-0.042, 0.018-0.050 and 0.135-0.166 deg."""
+    Measured (seed 1): at the IMU 0.031 deg, configured 0.043, default 0.033, trusted zero
+    0.123; seeds 2-5 with the lever arm trusted at zero: 0.135-0.166 deg."""
     base, b_out = _tilt_after_60s(None, ())
-    known, k_out = _tilt_after_60s(LEVER, ("gnss.lever_arm_m=[0,-0.3,-0.2]",))
-    unknown, u_out = _tilt_after_60s(LEVER, ())
+    known, k_out = _tilt_after_60s(LEVER, ("gnss.lever_arm_m=[0,-0.3,-0.2]",
+                                           "gnss.lever_arm_sd_m=0.05"))
+    default, d_out = _tilt_after_60s(LEVER, ())
+    trusted, t_out = _tilt_after_60s(LEVER, ("gnss.lever_arm_sd_m=0",))
     assert known <= 1.5 * base + 0.01, (base, known)
-    assert unknown > 2.0 * known, (known, unknown)
-    assert max(b_out, k_out, u_out) <= 0.05, (b_out, k_out, u_out)
+    assert default <= 1.5 * base + 0.01, (base, default)
+    assert trusted > 2.0 * known, (known, trusted)
+    assert max(b_out, k_out, d_out, t_out) <= 0.05, (b_out, k_out, d_out, t_out)
+
+
+def test_car_with_an_unmeasured_roof_antenna_keeps_heading_sigma_honest() -> None:
+    """GIVEN car480 (seeds 1-3) whose antenna is 1 m behind, 0.3 m right of and 1.2 m above
+    the IMU (benchmarks/robustness.py's lever_1.6m case), the lever arm not configured,
+    WHEN it runs with the default config, and with the lever arm of zero trusted
+    (`gnss.lever_arm_sd_m=0`, the control),
+    THEN pooled over the seeds the aligned heading is beyond 3 sigma in at most 5 % of
+    instants (issue 14's target), where the control exceeds it: in a turn the antenna's
+    course differs from the IMU's by (w x l) / v, which the control takes for heading.
+
+    Measured: default 3.4 % (seeds 1-3: 3.1 / 2.7 / 4.5 %), control 6.4 % (5.4 / 6.1 / 7.9 %)."""
+    share = []
+    for config in ((), ("gnss.lever_arm_sd_m=0",)):
+        ex = []
+        for seed in (1, 2, 3):
+            run = generate(load_scenario("car480",
+                                         {"gnss.lever_arm_m": list(rb.LEVER_1_6M)}), seed=seed)
+            r = rb.score_sim(run, "ground", config)
+            al = r.aligned
+            ex.append(np.abs(r.err_deg[al, 2]) > 3.0 * r.sd_deg[al, 2])
+        share.append(float(np.mean(np.concatenate(ex))))
+    assert share[0] <= 0.05, share
+    assert share[1] > 0.05, share

@@ -101,26 +101,31 @@ def test_replay_takes_the_logs_lever_arm_unless_set(src: Source, tmp_path: Path,
     """GIVEN the DataFlash log stating an antenna 0.1 m ahead of, 0.2 m left of and 0.15 m
     above the IMU,
     WHEN it is replayed as it is, then with `--set gnss.lever_arm_m=[0,0,0]`,
-    THEN the estimator is built with the log's lever arm and the replay says it came from
-    the log; with the user's setting, the user's stands and the line names the log's."""
+    THEN the estimator is built with the log's lever arm, as a measured one (1-sigma
+    0.05 m), and the replay says it came from the log; with the user's setting, the user's
+    stands (with the default 1-sigma) and the line names the log's."""
     p = tmp_path / "pos.bin"
     write_dataflash_ac33(p, src, params={"GPS_POS1_X": 0.1, "GPS_POS1_Y": -0.2,
                                          "GPS_POS1_Z": -0.15})
     built: list[tuple[float, ...]] = []
+    sds: list[float] = []
     real = replay.build_estimator
 
     def spy(cfg: Any) -> Any:
         built.append(tuple(cfg.estimator.gnss.lever_arm))
+        sds.append(cfg.estimator.gnss.lever_arm_sd)
         return real(cfg)
 
     monkeypatch.setattr(replay, "build_estimator", spy)
     out = tmp_path / "s.csv"
     assert replay.main(["--log", str(p), "--out", str(out), "--quiet"]) == 0
     err = capsys.readouterr().err
-    assert "gnss.lever_arm_m = [0.100, -0.200, -0.150] from the log" in err, err[-2000:]
+    assert ("gnss.lever_arm_m = [0.100, -0.200, -0.150] from the log, "
+            "gnss.lever_arm_sd_m = 0.05") in err, err[-2000:]
     assert built[-1] == pytest.approx((0.1, -0.2, -0.15), abs=1e-6)
     assert replay.main(["--log", str(p), "--out", str(out), "--quiet",
                         "--set", "gnss.lever_arm_m=[0,0,0]"]) == 0
     err = capsys.readouterr().err
     assert "gnss.lever_arm_m as set; note: the log states (0.100, -0.200, -0.150) m" in err
     assert built[-1] == (0.0, 0.0, 0.0)
+    assert sds == [0.05, 0.5]  # the log's lever arm is a measured one; the user's: default

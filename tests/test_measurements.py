@@ -21,6 +21,7 @@ import pytest
 from navd.core.aiding import gnss_heading, gnss_position, gnss_velocity
 from navd.core.kalman import gated_update, inject
 from navd.core.output import euler_error_map
+from navd.core.rotation import euler_to_mat
 
 # ---------------------------------------------------------------- independent helpers
 A_M = 6378137.0
@@ -601,3 +602,35 @@ def test_injection_turns_the_tilt_covariance_by_the_heading_correction() -> None
         np.testing.assert_allclose(buf[st.P:st.P + 225].reshape(15, 15), g @ p0 @ g.T,
                                    rtol=0, atol=1e-12)
         assert not buf[st.X:st.X + 15].any()
+
+
+def test_velocity_noise_of_an_uncertain_lever_arm() -> None:
+    """GIVEN a body rate w, an attitude C and a lever arm whose error dl is N(0, s^2 I),
+    WHEN the velocity block is filled with lever_var = s^2,
+    THEN R grows by the covariance of C (w x dl): s^2 C [w x][w x]^T C^T, checked against
+    the skew matrix written out and against 200,000 draws of dl (to 2 %); the course row,
+    filled after it, carries J R_v J^T of the grown R; zero rate adds nothing."""
+    rng = np.random.default_rng(5)
+    C = euler_to_mat(0.3, -0.2, 2.1)
+    w = np.array([0.4, -0.7, 1.1])
+    s2 = 0.5 ** 2
+    H = np.zeros((4, 15))
+    z = np.zeros(4)
+    R = np.zeros((4, 4))
+    R0 = np.zeros((4, 4))
+    args = (C, np.zeros(3), w, np.zeros(3), 1.0, 2.0, 0.5, 0.1, 0.2)
+    gnss_velocity.fill(H, z, R0, *args)
+    gnss_velocity.fill(H, z, R, *args, s2)
+    wx = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    want = s2 * C @ wx @ wx.T @ C.T
+    np.testing.assert_allclose(R[:3, :3] - R0[:3, :3], want, atol=1e-12)
+    dl = rng.normal(0.0, 0.5, (200_000, 3))
+    u = np.cross(w, dl) @ C.T
+    np.testing.assert_allclose(np.cov(u.T), want, rtol=0.02, atol=2e-3)
+    gnss_heading.course_row(H, z, R, 3, C, w, np.zeros(3), 1.0, 2.0, 0.1, 0.0)
+    j = np.array([-2.0, 1.0, 0.0]) / 5.0
+    assert R[3, 3] == pytest.approx(j @ R[:3, :3] @ j)
+    R1 = np.zeros((4, 4))
+    gnss_velocity.fill(H, z, R1, C, np.zeros(3), np.zeros(3), np.zeros(3), 1.0, 2.0, 0.5,
+                       0.1, 0.2, s2)
+    np.testing.assert_array_equal(R1, R0)

@@ -432,6 +432,9 @@ def _replay_log(a: argparse.Namespace) -> int:
     return _exit_code(rows, est)
 
 
+LOG_LEVER_ARM_SD_M = 0.05  # 1-sigma of an antenna position an autopilot's parameters state
+
+
 def log_lever_arm(tables: dict[str, Any], lever: tuple[float, float, float] | None
                   ) -> tuple[dict[str, Any], str]:
     """The config tables with ``[gnss] lever_arm_m`` taken from the log where it states the
@@ -448,8 +451,12 @@ def log_lever_arm(tables: dict[str, Any], lever: tuple[float, float, float] | No
     if not isinstance(g, dict):
         return tables, ""
     g["lever_arm_m"] = [float(v) for v in lever]
-    return chosen, (f"gnss.lever_arm_m = [{lever[0]:.3f}, {lever[1]:.3f}, {lever[2]:.3f}] "
-                    "from the log")
+    said = f"gnss.lever_arm_m = [{lever[0]:.3f}, {lever[1]:.3f}, {lever[2]:.3f}] from the log"
+    if "lever_arm_sd_m" not in g:
+        # the autopilot's own setting: someone measured it, to a few centimetres
+        g["lever_arm_sd_m"] = LOG_LEVER_ARM_SD_M
+        said += f", gnss.lever_arm_sd_m = {LOG_LEVER_ARM_SD_M:g}"
+    return chosen, said
 
 
 def log_profile(tables: dict[str, Any], nav: NavConfig, vehicle: str, vehicle_from: str

@@ -81,6 +81,12 @@ IMU_GRADES: dict[str, dict[str, float]] = {
 }
 DEFAULT_IMU_GRADE = "consumer"
 _GR = IMU_GRADES[DEFAULT_IMU_GRADE]
+# [gnss] lever_arm_sd_m default (m): an antenna nobody measured sits within ~0.3 m of the
+# IMU on a drone and 1-2 m on a car.  0.5 m: a car480 with its antenna 1.6 m off and left
+# unconfigured goes from 6.0 to 3.4 % of heading instants beyond 3 sigma; with no lever arm
+# it changes no simulated figure by more than 0.02 deg (docs/results.md, "The antenna's
+# lever arm").
+LEVER_ARM_SD_M = 0.5
 
 
 def imu_table_with_grade(table: Any) -> Any:
@@ -141,6 +147,10 @@ class InitSection:
 @dataclass(frozen=True)
 class GnssSection:
     lever_arm: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "m")
+    # 1-sigma per axis of what lever_arm may be off by (a user who never measured it: the
+    # default of zero with an antenna somewhere on the vehicle).  Its velocity C (w x dl)
+    # goes into the GNSS velocity and course noise while the vehicle turns.
+    lever_arm_sd: float = _f(LEVER_ARM_SD_M, "m")
     min_pos_sd: float = _f(0.3, "m")
     min_vel_sd: float = _f(0.03, "mps")
     max_age: float = _f(500.0, "ms")

@@ -257,11 +257,12 @@ def fill_position(buf: Arr, lat: float, lon: float, alt: float, sd_h: float,
 
 
 @jit
-def fill_velocity(buf: Arr, vn: float, ve: float, vd: float, sd_h: float, sd_v: float) -> int:
+def fill_velocity(buf: Arr, vn: float, ve: float, vd: float, sd_h: float, sd_v: float,
+                  lever_var: float) -> int:
     return gnss_velocity.fill(buf[H:H + 60].reshape((4, 15)), buf[Z:Z + 4],
                               buf[R:R + 16].reshape((4, 4)), buf[MAT:MAT + 9].reshape((3, 3)),
                               buf[VEL:VEL + 3], buf[RATE:RATE + 3], buf[LEVER:LEVER + 3],
-                              vn, ve, vd, sd_h, sd_v)
+                              vn, ve, vd, sd_h, sd_v, lever_var)
 
 
 @jit

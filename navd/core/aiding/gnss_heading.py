@@ -150,6 +150,7 @@ class CourseHeading:
             or (c.filter.profile == "fixed_wing" and c.heading.crab_sd > 0.0))
         self.sd_beta = (c.heading.sideslip_sd if c.filter.profile == "ground"
                         else c.heading.crab_sd)
+        self._lever_var = c.gnss.lever_arm_sd * c.gnss.lever_arm_sd
         self.status = "off"
         self.rejects = 0
         # [sideslip per lateral acceleration (rad per m/s^2), its variance, the last usable
@@ -216,7 +217,7 @@ class CourseHeading:
         # no vertical velocity reported: use our own with a variance that ignores it
         vd, sd_v = (g.vel_d, s_sd) if math.isfinite(g.vel_d) else (float(est.vel_n[2]), 1e3)
         swapped = est.state_at(g.t_us) is True
-        m = st.fill_velocity(est.buf, g.vel_n, g.vel_e, vd, s_sd, sd_v)
+        m = st.fill_velocity(est.buf, g.vel_n, g.vel_e, vd, s_sd, sd_v, self._lever_var)
         return m, swapped
 
     def _velocity_alone(self, est: Estimator, g: GnssSample, s_sd: float, hold: int,
@@ -283,7 +284,7 @@ class CourseHeading:
         sc = H[3, 0] * H[3, 0] * P[0, 0] + H[3, 1] * H[3, 1] * P[1, 1]
         sc += 2.0 * H[3, 0] * H[3, 1] * P[0, 1] + P[2, 2]
         sc -= 2.0 * (H[3, 0] * P[0, 2] + H[3, 1] * P[1, 2])
-        sc += s_sd * s_sd / (vn_c * vn_c + ve_c * ve_c) + sd_beta * sd_beta
+        sc += est.meas_R[3, 3]  # the course's own noise: speed, sideslip, lever arm
         course_ok = (not self._gating) or zc * zc / sc <= self._gate1
         self._learn_slip(zc, sc, a_lat)
         rec = est.innov[INNOV_COURSE]

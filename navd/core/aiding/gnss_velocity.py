@@ -20,8 +20,14 @@ Arr = npt.NDArray[np.float64]
 
 @jit
 def fill(H: Arr, z: Arr, R: Arr, mat_nb: Arr, vel_n: Arr, rate_b: Arr, lever_b: Arr,
-         vn: float, ve: float, vd: float, sd_h: float, sd_v: float) -> int:
-    """Write the 3-row velocity block into rows 0..2 of H, z, R; return m = 3."""
+         vn: float, ve: float, vd: float, sd_h: float, sd_v: float,
+         lever_var: float = 0.0) -> int:
+    """Write the 3-row velocity block into rows 0..2 of H, z, R; return m = 3.
+
+    ``lever_var``: variance per axis of the lever arm's error dl (m^2); the velocity it makes,
+    C (w x dl), adds ``lever_var C [w x][w x]^T C^T`` to R (full 3x3), which the course row
+    inherits through R (:func:`navd.core.aiding.gnss_heading.course_row`).
+    """
     H[:, :] = 0.0
     R[:, :] = 0.0
     # w x l in body
@@ -53,4 +59,25 @@ def fill(H: Arr, z: Arr, R: Arr, mat_nb: Arr, vel_n: Arr, rate_b: Arr, lever_b: 
     R[0, 0] = sd_h * sd_h
     R[1, 1] = sd_h * sd_h
     R[2, 2] = sd_v * sd_v
+    if lever_var > 0.0:
+        lever_noise(R, mat_nb, rate_b, lever_var)
     return 3
+
+
+@jit
+def lever_noise(R: Arr, mat_nb: Arr, rate_b: Arr, lever_var: float) -> None:
+    """R[0:3, 0:3] += lever_var C ([w x][w x]^T) C^T, [w x][w x]^T = |w|^2 I - w w^T: the
+    covariance of C (w x dl) for dl ~ N(0, lever_var I).  A lever arm is one fixed error, so
+    the velocity it makes persists through a turn; taken as white noise it only keeps the
+    update from trusting those velocities more than they deserve (docs/results.md)."""
+    w0, w1, w2 = rate_b[0], rate_b[1], rate_b[2]
+    ww = w0 * w0 + w1 * w1 + w2 * w2
+    # M = C (|w|^2 I - w w^T) C^T = |w|^2 I - (C w)(C w)^T  (C orthonormal)
+    c0 = mat_nb[0, 0] * w0 + mat_nb[0, 1] * w1 + mat_nb[0, 2] * w2
+    c1 = mat_nb[1, 0] * w0 + mat_nb[1, 1] * w1 + mat_nb[1, 2] * w2
+    c2 = mat_nb[2, 0] * w0 + mat_nb[2, 1] * w1 + mat_nb[2, 2] * w2
+    cw = (c0, c1, c2)
+    for i in range(3):
+        for j in range(3):
+            m = (ww if i == j else 0.0) - cw[i] * cw[j]
+            R[i, j] += lever_var * m
