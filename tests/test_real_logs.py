@@ -164,6 +164,7 @@ def test_x8_folder_replays_and_prints_its_rms(tmp_path: Path) -> None:
 @pytest.mark.xfail(strict=True, reason=(
     "regression since the tilt covariance turns with heading corrections "
     "(state.turn_tilt_cov, 2026-11-27): 5.74 / 7.03 deg against 5.50 / 5.79 before; "
+    "5.12 / 8.34 deg with the lever-arm allowance (gnss.lever_arm_sd_m 0.5, 2026-11-28); "
     "docs/results.md, 'The error reset turns the tilt'"))
 def test_x8_folder_as_a_ground_vehicle_stays_within_its_measured_rms(tmp_path: Path) -> None:
     """GIVEN the px4-x8-flight folder replayed with the default ground profile (the log
