@@ -49,11 +49,14 @@ L = 1148  # scratch (4, 4)
 PH = 1164  # scratch (15,)
 W4 = 1179  # scratch (4,)
 M3 = 1183  # scratch (3, 3)
-SAVE = 1192  # the present nominal state while a past one is swapped in (15,)
+SAVE = 1192  # the present nominal state and body rate while a past one is swapped in (18,)
 HIST_LEN = 512  # past nominal states kept: 0.5 s at 1 kHz, 5 s at 100 Hz
-HIST_W = 16  # t_us, C_b^n (9), vel_n (3), pos (3)
-HIST_I = 1207  # index of the newest entry (stored as float); -1 when empty
-HIST = 1208  # ring (HIST_LEN, HIST_W)
+# t_us, C_b^n (9), vel_n (3), pos (3), compensated body rate (3): a delayed fix's lever-arm
+# velocity C (w x l) is the antenna's at its own time, when the vehicle may have been
+# turning at another rate (log171: a 55 deg/s yaw ending inside the 200 ms of its delay)
+HIST_W = 19
+HIST_I = 1210  # index of the newest entry (stored as float); -1 when empty
+HIST = 1211  # ring (HIST_LEN, HIST_W)
 DPREV = HIST + HIST_LEN * HIST_W  # previous change of the angle increment (3,) rad
 # F's multirotor specific-force model (kalman.multirotor_f): low-passes, time constant
 # (s; 0: off), rotor-drag coefficient and its regression (kalman.FLP_N)
@@ -110,6 +113,8 @@ def imu_step(buf: Arr, t_us: float, dtx: float, dty: float, dtz: float, dvx: flo
     buf[o] = t_us
     for k in range(15):
         buf[o + 1 + k] = buf[MAT + k]  # MAT, VEL, POS are contiguous
+    for k in range(3):
+        buf[o + 16 + k] = buf[RATE + k]
     return done
 
 
@@ -155,6 +160,9 @@ def history_swap(buf: Arr, t_us: float, tol_us: float) -> bool:
             for k in range(15):
                 buf[SAVE + k] = buf[MAT + k]
                 buf[MAT + k] = buf[o + 1 + k]
+            for k in range(3):
+                buf[SAVE + 15 + k] = buf[RATE + k]
+                buf[RATE + k] = buf[o + 16 + k]
             return True
         if t < t_us:
             return False
@@ -168,6 +176,8 @@ def history_swap(buf: Arr, t_us: float, tol_us: float) -> bool:
 def history_restore(buf: Arr) -> None:
     for k in range(15):
         buf[MAT + k] = buf[SAVE + k]
+    for k in range(3):
+        buf[RATE + k] = buf[SAVE + 15 + k]
 
 
 @jit
