@@ -129,3 +129,8 @@ def test_replay_takes_the_logs_lever_arm_unless_set(src: Source, tmp_path: Path,
     assert "gnss.lever_arm_m as set; note: the log states (0.100, -0.200, -0.150) m" in err
     assert built[-1] == (0.0, 0.0, 0.0)
     assert sds == [0.05, 0.5]  # the log's lever arm is a measured one; the user's: default
+    plain = tmp_path / "plain.bin"
+    write_dataflash_ac33(plain, src)
+    assert replay.main(["--log", str(plain), "--out", str(out), "--quiet"]) == 0
+    assert "the log states no antenna position" in capsys.readouterr().err
+    assert built[-1] == (0.0, 0.0, 0.0) and sds[-1] == 0.5

@@ -400,7 +400,8 @@ def _replay_log(a: argparse.Namespace) -> int:
         print(f"navd replay: WARNING: {data.damage}", file=sys.stderr)
     tables, said = log_lever_arm(tables, data.lever_arm_m)
     if said:
-        nav = DaemonConfig.from_dict(tables, need_input=False).nav
+        if data.lever_arm_m is not None:
+            nav = DaemonConfig.from_dict(tables, need_input=False).nav
         print(f"navd replay: {said}", file=sys.stderr)
     vehicle, vehicle_from = data.vehicle, data.vehicle_from
     if not vehicle and not vehicle_from:
@@ -439,10 +440,14 @@ def log_lever_arm(tables: dict[str, Any], lever: tuple[float, float, float] | No
                   ) -> tuple[dict[str, Any], str]:
     """The config tables with ``[gnss] lever_arm_m`` taken from the log where it states the
     antenna's position (LogData.lever_arm_m) and the user set none (``--set`` or
-    ``--config`` always stands), and the line that says so ("" when nothing changed)."""
-    if lever is None:
-        return tables, ""
+    ``--config`` always stands), and the line that says what the replay uses ("" when the
+    user set it and the log states nothing)."""
     gnss = tables.get("gnss")
+    if lever is None:
+        if isinstance(gnss, dict) and "lever_arm_m" in gnss:
+            return tables, ""
+        return tables, ("gnss.lever_arm_m: the log states no antenna position; 0 with a "
+                        "lever_arm_sd_m allowance (--set gnss.lever_arm_m=[x,y,z] if known)")
     if isinstance(gnss, dict) and "lever_arm_m" in gnss:
         return tables, (f"gnss.lever_arm_m as set; note: the log states ({lever[0]:.3f}, "
                         f"{lever[1]:.3f}, {lever[2]:.3f}) m")
