@@ -58,10 +58,11 @@ def test_units_are_converted_to_si() -> None:
     ("filter.mode=magic", "[filter] mode"),
     ("gnss.lever_arm_m=[1, 2]", "list of 3 numbers in m"),
     ("imu.accel_bias_sd_mg=\"x\"", "number in mg"),
+    ("gnss.lever_arm_sd_m=-0.1", "[gnss] lever_arm_sd_m must be >= 0 (m)"),
 ])
 def test_bad_values_name_key_and_unit(override: str, needle: str) -> None:
-    """GIVEN a key without its unit suffix, an unknown filter mode, a 2-element lever arm, or
-    a string where mg are expected,
+    """GIVEN a key without its unit suffix, an unknown filter mode, a 2-element lever arm, a
+    string where mg are expected, or a negative lever-arm allowance,
     WHEN the estimator config is built,
     THEN a ConfigError names the key with its unit, or the expected value and its unit."""
     with pytest.raises(ConfigError) as exc:

@@ -160,6 +160,9 @@ class GnssSection:
     use_position: bool = _f(True)
     use_velocity: bool = _f(True)
 
+    def validate(self) -> None:
+        check(self.lever_arm_sd >= 0.0, "gnss", "lever_arm_sd_m", ">= 0 (m)")
+
 
 @dataclass(frozen=True)
 class HeadingSection:
