@@ -53,7 +53,8 @@ SAVE = 1192  # the present nominal state and body rate while a past one is swapp
 HIST_LEN = 512  # past nominal states kept: 0.5 s at 1 kHz, 5 s at 100 Hz
 # t_us, C_b^n (9), vel_n (3), pos (3), compensated body rate (3): a delayed fix's lever-arm
 # velocity C (w x l) is the antenna's at its own time, when the vehicle may have been
-# turning at another rate (log171: a 55 deg/s yaw ending inside the 200 ms of its delay)
+# turning at another rate (a 60 deg/s yaw with 0.2 s of latency; replays, which push each
+# fix at its time of validity, never swap: docs/results.md)
 HIST_W = 19
 HIST_I = 1210  # index of the newest entry (stored as float); -1 when empty
 HIST = 1211  # ring (HIST_LEN, HIST_W)
