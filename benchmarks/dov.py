@@ -75,6 +75,7 @@ NAV_CONFIG = [
     "imu.gyro_arw_deg_per_sqrt_h=0.0005", "imu.accel_vrw_mps_per_sqrt_s=1e-4",
     "imu.gyro_bias_sd_deg_per_h=0.003", "imu.accel_bias_sd_mg=0.0102",
     "imu.gyro_bias_rw_deg_per_h_per_sqrt_h=1e-5", "imu.accel_bias_rw_mps2_per_sqrt_s=1e-8",
+    "imu.gyro_scale_sd_pct=0.0005",  # an RLG's 5 ppm; the consumer 1 % would be 1.8 deg a turn
     "gnss.min_pos_sd_m=0.3", "gnss.min_vel_sd_mps=0.03",
 ]
 

@@ -5,7 +5,7 @@ defaults plus the scenario's natural ``filter.profile`` (ground for cars, multir
 multirotor scenario, fixed_wing for the X8), never the simulated IMU's own figures.  Simulated
 cases are overrides of the built-in scenarios (car480: 480 s at 10-24 m/s; multirotor: 240 s;
 drive_long: 1200 s with stops and outages), full length: nothing is shortened, since the
-default settings (21 cases x 5 seeds, the three multirotor cases and noise_x3 x 20, + 4
+default settings (25 cases x 5 seeds, the three multirotor cases and noise_x3 x 20, + 4
 logs) take about 2.5 minutes on 2 cores (142 s on 2026-11-27; numba's compiled code cached,
 the first run ever compiles for about a minute more).
 
@@ -162,6 +162,15 @@ CASES: tuple[Case, ...] = (
          "multirotor, accel offsets +20/-20/+20 mg (uncalibrated)",
          overrides={"imu.accel_offset_mps2": [20 * MG, -20 * MG, 20 * MG]},
          min_seeds=WIDE_SEEDS),
+    Case("gyro_sf_1pct", "car480", "ground",
+         "gyro scale-factor errors drawn at 1 % per axis (uncalibrated sensitivity)",
+         overrides={"imu.gyro_scale_factor_sigma_ppm": 10_000.0}),
+    Case("gyro_sf_3pct", "car480", "ground",
+         "gyro scale-factor errors drawn at 3 % per axis (3x the consumer preset's 1 %)",
+         overrides={"imu.gyro_scale_factor_sigma_ppm": 30_000.0}),
+    Case("gyro_sf_1pct_mr", "multirotor", "multirotor",
+         "multirotor, gyro scale-factor errors drawn at 1 % per axis",
+         overrides={"imu.gyro_scale_factor_sigma_ppm": 10_000.0}),
     Case("noise_x3", "car480", "ground",
          "IMU ARW and VRW 3x the config's (config understates the noise)",
          overrides={"imu.arw_rad_per_sqrt_s": 3 * 0.24 * DEG / 60.0,

@@ -89,7 +89,7 @@ NAV = ["filter.mode=traditional", "filter.robust=none", "init.heading_source=con
        "init.pos_sd_m=3.0", "imu.gyro_arw_deg_per_sqrt_h=0.0005",
        "imu.accel_vrw_mps_per_sqrt_s=1e-4", "imu.gyro_bias_sd_deg_per_h=0.003",
        "imu.accel_bias_sd_mg=0.0102", "imu.gyro_bias_rw_deg_per_h_per_sqrt_h=1e-5",
-       "imu.accel_bias_rw_mps2_per_sqrt_s=1e-8"]
+       "imu.accel_bias_rw_mps2_per_sqrt_s=1e-8", "imu.gyro_scale_sd_pct=0.0005"]
 
 
 def _tilt(run: SimRun, cfg: EstimatorConfig, field: DovField | None) -> tuple[Arr, Arr, Arr]:

@@ -63,15 +63,20 @@ def test_lever_arm_configured_or_uncertain_keeps_the_antenna_motion_out() -> Non
 def test_car_with_an_unmeasured_roof_antenna_keeps_heading_sigma_honest() -> None:
     """GIVEN car480 (seeds 1-3) whose antenna is 1 m behind, 0.3 m right of and 1.2 m above
     the IMU (benchmarks/robustness.py's lever_1.6m case), the lever arm not configured,
-    WHEN it runs with the default config, and with the lever arm of zero trusted
-    (`gnss.lever_arm_sd_m=0`, the control),
+    WHEN it runs with the default config, with the lever-arm allowance alone (the gyro
+    scale-factor allowance off, ``imu.gyro_scale_sd_pct=0``: it widens the heading sigma in
+    turns too), and with neither (the control: the lever arm of zero trusted,
+    ``gnss.lever_arm_sd_m=0``),
     THEN pooled over the seeds the aligned heading is beyond 3 sigma in at most 5 % of
-    instants (issue 14's target), where the control exceeds it: in a turn the antenna's
-    course differs from the IMU's by (w x l) / v, which the control takes for heading.
+    instants (issue 14's target) in the first two, where the control exceeds it: in a turn
+    the antenna's course differs from the IMU's by (w x l) / v, which the control takes for
+    heading.
 
-    Measured: default 3.4 % (seeds 1-3: 3.1 / 2.7 / 4.5 %), control 6.4 % (5.4 / 6.1 / 7.9 %)."""
+    Measured: default 0.0 %, lever-arm allowance alone 3.4 % (seeds 1-3: 3.1 / 2.7 /
+    4.5 %), control 6.4 % (5.4 / 6.1 / 7.9 %)."""
     share = []
-    for config in ((), ("gnss.lever_arm_sd_m=0",)):
+    for config in ((), ("imu.gyro_scale_sd_pct=0",),
+                   ("gnss.lever_arm_sd_m=0", "imu.gyro_scale_sd_pct=0")):
         ex = []
         for seed in (1, 2, 3):
             run = generate(load_scenario("car480",
@@ -81,4 +86,5 @@ def test_car_with_an_unmeasured_roof_antenna_keeps_heading_sigma_honest() -> Non
             ex.append(np.abs(r.err_deg[al, 2]) > 3.0 * r.sd_deg[al, 2])
         share.append(float(np.mean(np.concatenate(ex))))
     assert share[0] <= 0.05, share
-    assert share[1] > 0.05, share
+    assert share[1] <= 0.05, share
+    assert share[2] > 0.05, share

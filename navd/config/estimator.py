@@ -57,26 +57,33 @@ class FilterSection:
 #              BMI088): turn-on gyro offsets of 0.3-1 deg/s and accelerometer offsets of
 #              20-50 mg must lie inside the prior (0.5 deg/s, 30 mg: 1-2 sigma); datasheet
 #              ARW 0.2-0.8 deg/sqrt(h); VRW raised to 0.3 m/s/sqrt(s) for vehicle vibration;
-#              bias drifts with temperature (random walks 5 deg/h/sqrt(h), 1e-4 m/s^2/sqrt(s))
+#              bias drifts with temperature (random walks 5 deg/h/sqrt(h), 1e-4 m/s^2/sqrt(s));
+#              gyro sensitivity never calibrated (autopilots calibrate offsets only):
+#              datasheet tolerances +-0.5 to +-3 %, 1 % as 1-sigma
 #  industrial  calibrated MEMS modules: seed 001's figures (12 deg/h, 5 mg, 0.24 deg/sqrt(h),
-#              0.3 m/s/sqrt(s) as printed), navd's defaults before the presets existed
+#              0.3 m/s/sqrt(s) as printed), navd's defaults before the presets existed;
+#              gyro scale factor 0.1 % (a calibrated module's +-0.3 %)
 #  tactical    high-end MEMS / FOG (STIM300-, KVH-class): 3 deg/h, 1 mg, 0.15 deg/sqrt(h),
-#              0.02 m/s/sqrt(s) (vibration allowance over the datasheet's ~0.001)
+#              0.02 m/s/sqrt(s) (vibration allowance over the datasheet's ~0.001); gyro
+#              scale factor 0.02 % (200 ppm)
 IMU_GRADES: dict[str, dict[str, float]] = {
     "consumer": {
         "gyro_arw_deg_per_sqrt_h": 0.5, "accel_vrw_mps_per_sqrt_s": 0.3,
         "gyro_bias_sd_deg_per_h": 1800.0, "accel_bias_sd_mg": 30.0,
         "gyro_bias_rw_deg_per_h_per_sqrt_h": 5.0, "accel_bias_rw_mps2_per_sqrt_s": 1e-4,
+        "gyro_scale_sd_pct": 1.0,
     },
     "industrial": {
         "gyro_arw_deg_per_sqrt_h": 0.24, "accel_vrw_mps_per_sqrt_s": 0.3,
         "gyro_bias_sd_deg_per_h": 12.0, "accel_bias_sd_mg": 5.0,
         "gyro_bias_rw_deg_per_h_per_sqrt_h": 0.1, "accel_bias_rw_mps2_per_sqrt_s": 1e-5,
+        "gyro_scale_sd_pct": 0.1,
     },
     "tactical": {
         "gyro_arw_deg_per_sqrt_h": 0.15, "accel_vrw_mps_per_sqrt_s": 0.02,
         "gyro_bias_sd_deg_per_h": 3.0, "accel_bias_sd_mg": 1.0,
         "gyro_bias_rw_deg_per_h_per_sqrt_h": 0.01, "accel_bias_rw_mps2_per_sqrt_s": 1e-6,
+        "gyro_scale_sd_pct": 0.02,
     },
 }
 DEFAULT_IMU_GRADE = "consumer"
@@ -103,7 +110,7 @@ def imu_table_with_grade(table: Any) -> Any:
 
 @dataclass(frozen=True)
 class ImuSection:
-    # preset for the six noise/bias figures below (IMU_GRADES); explicit keys override it.
+    # preset for the seven noise/bias/scale figures below (IMU_GRADES); explicit keys override it.
     # The field defaults are the default grade's.
     grade: str = _f(DEFAULT_IMU_GRADE, choices=tuple(IMU_GRADES))
     gyro_arw: float = _f(_GR["gyro_arw_deg_per_sqrt_h"], "deg_per_sqrt_h")
@@ -116,11 +123,18 @@ class ImuSection:
     accel_bias: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "mg")
     gyro_bias_rw: float = _f(_GR["gyro_bias_rw_deg_per_h_per_sqrt_h"], "deg_per_h_per_sqrt_h")
     accel_bias_rw: float = _f(_GR["accel_bias_rw_mps2_per_sqrt_s"], "mps2_per_sqrt_s")
+    # 1-sigma of each gyro axis's scale-factor error (fraction; 0: none): every rotation
+    # makes that share of itself into attitude error, added to P as the net rotation grows
+    # (navd/core/kalman.py, gyro_scale_allowance)
+    gyro_scale_sd: float = _f(_GR["gyro_scale_sd_pct"], "pct")
     max_accel: float = _f(50.0 * G0, "mps2")
     max_rate: float = _f(2000.0, "dps")
     # at rest (IMU still over 10 s, Allan-type test), measure the gyro offset and feed it to
     # the gyro-bias state, as autopilots calibrate at boot (navd/core/aiding/gyro_rest.py)
     rest_calibration: bool = _f(True)
+
+    def validate(self) -> None:
+        check(0.0 <= self.gyro_scale_sd < 0.5, "imu", "gyro_scale_sd_pct", "in [0, 50) (%)")
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,7 @@ from navd.core.aiding.yaw_bank import YawBank, bank_enabled
 from navd.core.aiding.yaw_bank_kernels import bank_imu, main_yaw, wrap
 from navd.core.earth import geodetic_to_ecef, radii
 from navd.core.imu_block import LIM_AHEAD, LIM_BACK, PUSH_LIMITS, ImuBlock, push_run
-from navd.core.kalman import F_TAU_S
+from navd.core.kalman import F_TAU_S, SF_FORGET_S
 from navd.core.level import level_cov
 from navd.core.output import attitude_outputs
 from navd.core.rotation import euler_to_mat_into
@@ -143,6 +143,8 @@ class Estimator:
         self._coning = c.filter.coning
         # F's specific force low-passed on a multirotor only (navd/core/kalman.py, F_TAU_S)
         v.f_lp[6] = F_TAU_S if c.filter.profile == "multirotor" else 0.0
+        v.sf[0] = c.imu.gyro_scale_sd**2
+        v.sf[13] = SF_FORGET_S
         self._cov_interval = c.filter.cov_interval
 
         # The aids, in the order they see a sample: the gravity model is evaluated at the
@@ -207,6 +209,7 @@ class Estimator:
         # the low-passes and high-passes restart; the drag coefficient's regression stays
         self._v.f_lp[:6] = 0.0
         self._v.f_lp[8:14] = 0.0
+        self._v.sf[1:13] = 0.0  # the scale allowance's net rotations start again
         for aid in self.aids:
             aid.reset()
         self.gyro_rest.reset()

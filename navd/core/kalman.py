@@ -63,6 +63,16 @@ DRAG_PRIOR_PER_S = 0.2
 DRAG_PRIOR_SD = 0.15
 DRAG_MAX_PER_S = 1.0
 FLP_N = 16
+# the gyro scale-factor allowance (gyro_scale_allowance): [0] the variance of each axis's
+# scale error (dimensionless^2; 0: off), [1:10] A (3, 3) row-major, column i the
+# navigation-frame attitude error per unit scale error of body axis i (rad), [10:13] the
+# squared length of each column already put into P, [13] the forgetting time constant, s
+SF_N = 14
+# car480 with 1 % per axis, seeds 1-3, heading beyond 3 sigma: no allowance 21 %; forgetting
+# in 2 / 5 / 10 / 20 / 40 s: 5.0 / 2.6 / 3.1 / 3.8 / 5.7 %; forgetting by the updates' own
+# variance ratio instead (P+/P-): 6.0 % (the course reads a turn's error as sideslip, so the
+# updates shrink P without removing it); the same scale as a gyro-bias allowance: 6.5 %
+SF_FORGET_S = 5.0
 
 
 @jit
@@ -315,18 +325,59 @@ def multirotor_f(f_lp: Arr, mat_nb: Arr, vel_n: Arr, fx: float, fy: float, fz: f
 
 
 @jit
+def gyro_scale_allowance(sf: Arr, mat_nb: Arr, inc: Arr, dt: float, P: Arr) -> None:
+    """Add to P's attitude block what an unknown gyro scale-factor error makes of this step's
+    rotation (``inc`` (6,): the compensated increments, rad and m/s; ``dt`` s).
+
+    A scale error s_i of body axis i turns every rotation about that axis into attitude
+    error: phi_n = sum_i a_i s_i with a_i = sum_k C_k e_i dtheta_ki, the net rotation about
+    the axis in the navigation frame (C_k: C_b^n of step k).  It is one fixed error, not
+    white noise: a 90 deg turn at 1 % is 0.9 deg of heading, reached within the turn, which
+    the heading updates cannot follow (the course sees it as sideslip until the turn ends),
+    and a turn back undoes it.  So its variance is added as the coherent sum grows: while
+    |a_i|^2 exceeds what was already put in (``sf[10 + i]``), s^2 times the excess along a_i.
+    An oscillation (a multirotor's wobble) adds its amplitude once, a turn its angle
+    squared, a turn back nothing.  The a_i forget with the time constant ``sf[13]``
+    (SF_FORGET_S): once the vehicle stops turning the updates remove the error (car480: to
+    a fifth within ~10 s of a turn's end), and the next turn is an error of its own; in a
+    long turn the allowance becomes a white noise of density 2 s^2 w^2 SF_FORGET_S.
+    """
+    var = sf[0]
+    if var <= 0.0:
+        return
+    lam = math.exp(-dt / sf[13])
+    for i in range(3):
+        d = inc[i]
+        n2 = 0.0
+        for j in range(3):
+            a = lam * sf[1 + 3 * j + i] + mat_nb[j, i] * d
+            sf[1 + 3 * j + i] = a
+            n2 += a * a
+        acc = sf[10 + i] * lam * lam
+        if n2 > acc:
+            k = var * (n2 - acc) / n2
+            for j in range(3):
+                aj = sf[1 + 3 * j + i]
+                for m in range(3):
+                    P[j, m] += k * aj * sf[1 + 3 * m + i]
+            acc = n2
+        sf[10 + i] = acc
+
+
+@jit
 def imu_step(mat_nb: Arr, vel_n: Arr, pos: Arr, dov: Arr, bg: Arr, ba: Arr,
              inc: Arr, prev_inc: Arr, dprev: Arr, acc: Arr,
              dtx: float, dty: float, dtz: float, dvx: float, dvy: float, dvz: float,
              dt: float, coning: bool, cov_interval: float,
              P: Arr, F: Arr, q: Arr, A: Arr, B: Arr, work: Arr, rate: Arr,
-             f_lp: Arr) -> bool:
+             f_lp: Arr, sf: Arr) -> bool:
     """One IMU sample: bias compensation, strapdown, and covariance propagation when due.
 
     ``acc`` (8,) accumulates (sum dv_b xyz, sum dt, step count, -, -, -) between covariance
     propagations; ``f_lp`` (7,) keeps the low-passed body specific force F uses and its time
     constant (F_TAU_S).  ``rate`` (3,) receives the compensated body rate (rad/s).  Returns
-    True when P was propagated.
+    True when P was propagated.  ``sf`` (SF_N,): the gyro scale-factor allowance's state
+    (:func:`gyro_scale_allowance`).
 
     Sampling error: an increment made from a point-sampled rate (HIGHRES_IMU, a log's IMU
     message at 50 Hz) misses what the rate did between samples, which the gyro's noise
@@ -349,6 +400,7 @@ def imu_step(mat_nb: Arr, vel_n: Arr, pos: Arr, dov: Arr, bg: Arr, ba: Arr,
     rate[0] = inc[0] / dt
     rate[1] = inc[1] / dt
     rate[2] = inc[2] / dt
+    gyro_scale_allowance(sf, mat_nb, inc, dt, P)
     sampling = -18.0 * (q[0] + q[1] + q[2]) * dt  # 3 x the white noise's mean |d2|^2
     for i in range(3):
         d1 = inc[i] - prev_inc[i]

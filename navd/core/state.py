@@ -62,7 +62,9 @@ DPREV = HIST + HIST_LEN * HIST_W  # previous change of the angle increment (3,) 
 # F's multirotor specific-force model (kalman.multirotor_f): low-passes, time constant
 # (s; 0: off), rotor-drag coefficient and its regression (kalman.FLP_N)
 FLP = DPREV + 3
-SIZE = FLP + kalman.FLP_N
+# the gyro scale-factor allowance's variance and accumulators (kalman.gyro_scale_allowance)
+SF = FLP + kalman.FLP_N
+SIZE = SF + kalman.SF_N
 
 
 class StateViews:
@@ -92,6 +94,7 @@ class StateViews:
         self.M = buf[M3:M3 + 9].reshape(3, 3)
         self.hist = buf[HIST:HIST + HIST_LEN * HIST_W].reshape(HIST_LEN, HIST_W)
         self.f_lp = buf[FLP:FLP + kalman.FLP_N]
+        self.sf = buf[SF:SF + kalman.SF_N]
 
 
 @jit
@@ -105,7 +108,8 @@ def imu_step(buf: Arr, t_us: float, dtx: float, dty: float, dtz: float, dvx: flo
         dvz, dt, coning,
         cov_interval, buf[P:P + 225].reshape((15, 15)), buf[F:F + 225].reshape((15, 15)),
         buf[Q:Q + 15], buf[A:A + 225].reshape((15, 15)), buf[B:B + 225].reshape((15, 15)),
-        buf[WORK:WORK + 72].reshape((8, 3, 3)), buf[RATE:RATE + 3], buf[FLP:FLP + kalman.FLP_N])
+        buf[WORK:WORK + 72].reshape((8, 3, 3)), buf[RATE:RATE + 3], buf[FLP:FLP + kalman.FLP_N],
+        buf[SF:SF + kalman.SF_N])
     i = int(buf[HIST_I]) + 1
     if i >= HIST_LEN:
         i = 0
