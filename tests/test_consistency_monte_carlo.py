@@ -2,9 +2,11 @@
 car cases (issue 14, "NEES within its band on the Monte Carlo cases").  The figures per case,
 pooled over 5 seeds, are the benchmark's NEES column (docs/results.md); this checks seed 1
 of the car cases where the filter is consistent, and the multirotor pooled over its 5 seeds,
-so a change that makes it overconfident fails here.  Cases where it is not (3x IMU noise,
-Gauss-Markov biases: attitude NEES 4-5) are listed as NOT met in docs/results.md, not tested
-as if they were."""
+so a change that makes it overconfident fails here.  3x IMU noise is checked on seed 1 like
+the others (its NEES over the benchmark's 20 seeds was 3.6, above the band, before the gyro
+scale-factor allowance and is 2.8 with it; seed 1 alone 1.5 and 1.7; docs/results.md, "Gyro
+scale factor").  The case where it is not (Gauss-Markov biases: attitude NEES 3.7 pooled, band
+<= 3.20) is listed as NOT met in docs/results.md, not tested as if it were."""
 
 from __future__ import annotations
 
@@ -16,7 +18,8 @@ from firmware_sim import generate, load_scenario
 rb = load_benchmark("robustness")
 
 
-@pytest.mark.parametrize("name", ["car_clean", "gyro_1", "accel_20mg", "sideslip_2"])
+@pytest.mark.parametrize("name", ["car_clean", "gyro_1", "accel_20mg", "sideslip_2",
+                                  "noise_x3"])
 def test_car_cases_are_consistent(name: str) -> None:
     """GIVEN one of the benchmark's car cases (seed 1, default config, ground profile),
     WHEN its attitude and velocity NEES are averaged after 60 s,
