@@ -59,10 +59,13 @@ def test_units_are_converted_to_si() -> None:
     ("gnss.lever_arm_m=[1, 2]", "list of 3 numbers in m"),
     ("imu.accel_bias_sd_mg=\"x\"", "number in mg"),
     ("gnss.lever_arm_sd_m=-0.1", "[gnss] lever_arm_sd_m must be >= 0 (m)"),
+    ("imu.gyro_scale_sd_pct=-1", "[imu] gyro_scale_sd_pct must be in [0, 50) (%)"),
+    ("imu.gyro_scale_sd_pct=60", "[imu] gyro_scale_sd_pct must be in [0, 50) (%)"),
 ])
 def test_bad_values_name_key_and_unit(override: str, needle: str) -> None:
     """GIVEN a key without its unit suffix, an unknown filter mode, a 2-element lever arm, a
-    string where mg are expected, or a negative lever-arm allowance,
+    string where mg are expected, a negative lever-arm allowance, or a gyro scale-factor
+    sigma below 0 % or of 50 % and more,
     WHEN the estimator config is built,
     THEN a ConfigError names the key with its unit, or the expected value and its unit."""
     with pytest.raises(ConfigError) as exc:
@@ -111,7 +114,7 @@ def test_unknown_keys_give_one_style_of_error(override: str) -> None:
 @pytest.mark.parametrize("grade", ["consumer", "industrial", "tactical"])
 def test_imu_grade_sets_its_figures_and_written_keys_override_them(grade: str) -> None:
     """GIVEN [imu] grade = <grade> alone, and the same with gyro_bias_sd_deg_per_h = 7,
-    THEN the six noise/bias figures are the grade's (in SI), except the written key, which
+    THEN the seven noise/bias/scale figures are the grade's (in SI), except the written key, which
     wins; the shipped file's commented figures are the grades' own."""
     from navd.config.estimator import IMU_GRADES
 
@@ -126,6 +129,7 @@ def test_imu_grade_sets_its_figures_and_written_keys_override_them(grade: str) -
     assert c.gyro_bias_rw == pytest.approx(
         preset["gyro_bias_rw_deg_per_h_per_sqrt_h"] * math.pi / 180 / 3600 / 60)
     assert c.accel_bias_rw == pytest.approx(preset["accel_bias_rw_mps2_per_sqrt_s"])
+    assert c.gyro_scale_sd == pytest.approx(preset["gyro_scale_sd_pct"] / 100.0)
     o = EstimatorConfig.from_dict(load_config(None, [
         f"imu.grade={grade}", "imu.gyro_bias_sd_deg_per_h=7"])).imu
     assert o.gyro_bias_sd == pytest.approx(7 * math.pi / 180 / 3600)
