@@ -5,8 +5,9 @@ of the car cases where the filter is consistent, and the multirotor pooled over 
 so a change that makes it overconfident fails here.  3x IMU noise is checked on seed 1 like
 the others (its NEES over the benchmark's 20 seeds was 3.6, above the band, before the gyro
 scale-factor allowance and is 2.8 with it; seed 1 alone 1.5 and 1.7; docs/results.md, "Gyro
-scale factor").  The case where it is not (Gauss-Markov biases: attitude NEES 3.7 pooled, band
-<= 3.20) is listed as NOT met in docs/results.md, not tested as if it were."""
+scale factor").  Gauss-Markov biases are checked pooled over the benchmark's 5 seeds, where
+they were above the band until the consumer accelerometer-bias walk took a warming board's
+temperature drift (docs/results.md, "The consumer accelerometer-bias walk")."""
 
 from __future__ import annotations
 
@@ -74,3 +75,20 @@ def test_multirotor_heading_sigma_covers_its_error(seed: int) -> None:
     q = float(((r.err_deg[m, 2] / r.sd_deg[m, 2]) ** 2).mean())
     k = max(1, int((r.t_s[m][-1] - r.t_s[m][0]) / rb.NEES_BLOCK_S))
     assert q < chi2_quantile(0.995, k) / k, (q, k)
+
+
+def test_gauss_markov_biases_are_consistent_over_the_benchmark_seeds() -> None:
+    """GIVEN gm_100s (car480 whose gyro and accelerometer biases wander as Gauss-Markov
+    processes, 12 deg/h and 5 mg with 100 s correlation; default config), seeds 1-5 as the
+    benchmark pools them,
+    WHEN the attitude NEES is averaged after 60 s,
+    THEN it is not above its 99 % band (measured 2.9, band <= 3.20).  With the consumer
+    accelerometer-bias walk at 1e-4 m/s^2/sqrt(s) it was 3.7 (4.5 before the gyro
+    scale-factor allowance), pitch beyond 3 sigma 3.5 % (now 1.2 %): a sigma that assumed
+    the bias nearly constant."""
+    case = next(c for c in rb.CASES if c.name == "gm_100s")
+    runs = [rb.score_sim(generate(load_scenario(case.scenario, dict(case.overrides)),
+                                  seed=s, progress=False), case.profile)
+            for s in range(1, 6)]
+    fig = rb.nees_figures(runs)
+    assert fig["nees_att"] < fig["nees_band"][1], fig
