@@ -11,12 +11,24 @@ temperature drift (docs/results.md, "The consumer accelerometer-bias walk")."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 from bench_util import load_benchmark
 
 from firmware_sim import generate, load_scenario
 
 rb = load_benchmark("robustness")
+
+
+def pooled_nees(name: str) -> dict[str, Any]:
+    """The benchmark's NEES figures of case ``name`` pooled over seeds 1-5."""
+    case = next(c for c in rb.CASES if c.name == name)
+    runs = [rb.score_sim(generate(load_scenario(case.scenario, dict(case.overrides)),
+                                  seed=s, progress=False), case.profile)
+            for s in range(1, 6)]
+    fig: dict[str, Any] = rb.nees_figures(runs)
+    return fig
 
 
 @pytest.mark.parametrize("name", ["car_clean", "gyro_1", "accel_20mg", "sideslip_2",
@@ -44,11 +56,7 @@ def test_multirotor_attitude_nees_is_not_above_its_band() -> None:
     accelerometer noise in F it was 3.96: seeds 4 and 5 held a bank-aligned heading 3.5-5 deg
     off while the noise "told" the filter its heading was right (sigma 1.6-2 deg for 190 s;
     docs/results.md, "mr_clean: heading information from accelerometer noise")."""
-    case = next(c for c in rb.CASES if c.name == "mr_clean")
-    runs = [rb.score_sim(generate(load_scenario(case.scenario, dict(case.overrides)),
-                                  seed=s, progress=False), case.profile)
-            for s in range(1, 6)]
-    fig = rb.nees_figures(runs)
+    fig = pooled_nees("mr_clean")
     assert fig["nees_att"] < fig["nees_band"][1], fig
 
 
@@ -86,9 +94,5 @@ def test_gauss_markov_biases_are_consistent_over_the_benchmark_seeds() -> None:
     accelerometer-bias walk at 1e-4 m/s^2/sqrt(s) it was 3.7 (4.5 before the gyro
     scale-factor allowance), pitch beyond 3 sigma 3.5 % (now 1.2 %): a sigma that assumed
     the bias nearly constant."""
-    case = next(c for c in rb.CASES if c.name == "gm_100s")
-    runs = [rb.score_sim(generate(load_scenario(case.scenario, dict(case.overrides)),
-                                  seed=s, progress=False), case.profile)
-            for s in range(1, 6)]
-    fig = rb.nees_figures(runs)
+    fig = pooled_nees("gm_100s")
     assert fig["nees_att"] < fig["nees_band"][1], fig
