@@ -116,13 +116,6 @@ def test_a_turn_back_adds_nothing_and_a_wobble_adds_its_amplitude_once() -> None
     assert w_add < 0.05 * steady, (w_add, steady)
 
 
-def test_off_adds_nothing() -> None:
-    """GIVEN the allowance off (scale sd 0), WHEN a vehicle turns, THEN P is the run's
-    without it to the last bit (the other terms alone)."""
-    rates = np.tile([0.3, -0.2, 1.0], (200, 1))
-    assert np.array_equal(added(rates, 0.0), np.zeros((3, 3)))
-
-
 rb = load_benchmark("robustness")
 
 
