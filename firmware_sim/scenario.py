@@ -251,6 +251,13 @@ class ImuSpec:
                                             "constant gyro offset x y z, body FRD")
     accel_offset_mps2: tuple[float, ...] = _f("m/s^2", (0.0, 0.0, 0.0),
                                               "constant accelerometer offset x y z, body FRD")
+    # The IMU turned on the vehicle (a board fixed at an angle, a module on its side): the
+    # true sensor -> body rotation (ZYX, as for the polarization sensor).  The increments are
+    # the IMU's, every error above is in the IMU's axes; the truth stays the vehicle's.  navd
+    # is told with ``[imu] mount_*_deg`` (the same angles).
+    mount_roll_deg: float = _f("deg", 0.0)
+    mount_pitch_deg: float = _f("deg", 0.0)
+    mount_yaw_deg: float = _f("deg", 0.0)
     gyro_bias_rw_rps_per_sqrt_s: float = _f("rad/s/sqrt(s)", 0.0,
                                             "gyro bias random walk (starts at 0)")
     accel_bias_rw_mps2_per_sqrt_s: float = _f("m/s^2/sqrt(s)", 0.0,
@@ -627,6 +634,8 @@ def _validate(sc: Scenario) -> None:
         _check(getattr(imu, name) >= 0.0, f"imu.{name}", "must be >= 0")
     for name in ("gyro_offset_rps", "accel_offset_mps2"):
         _check(len(getattr(imu, name)) == 3, f"imu.{name}", "needs 3 values (x, y, z)")
+    for name in ("mount_roll_deg", "mount_pitch_deg", "mount_yaw_deg"):
+        _check(abs(getattr(imu, name)) <= 180.0, f"imu.{name}", "must be in [-180, 180]")
     _check(imu.gyro_gm_tau_s > 0.0, "imu.gyro_gm_tau_s", "must be > 0 s")
     _check(imu.accel_gm_tau_s > 0.0, "imu.accel_gm_tau_s", "must be > 0 s")
     g = sc.gnss

@@ -35,6 +35,7 @@ import numpy.typing as npt
 
 from firmware_sim.scenario import GnssSpec, ImuSpec, JumpSpec
 from navd.core.earth import geodetic_to_ecef, radii
+from navd.core.rotation import euler_to_mat
 
 Arr = npt.NDArray[np.float64]
 F = TypeVar("F", bound=Callable[..., Any])
@@ -132,9 +133,15 @@ def corrupt_imu(inc_true: Arr, dt_s: float, spec: ImuSpec, seed: int) -> tuple[A
         seed: run seed.
 
     Returns:
-        (N, 6) measured increments and the drawn errors.
+        (N, 6) measured increments, in the IMU's axes (``spec.mount_*_deg``; body FRD
+        when zero), and the drawn errors (IMU axes).
     """
     n = inc_true.shape[0]
+    mount = (spec.mount_roll_deg, spec.mount_pitch_deg, spec.mount_yaw_deg)
+    if any(mount):
+        # row vectors: v_s^T = v_b^T C_s^b, with C_s^b the mount as an attitude
+        mat_bs = euler_to_mat(*(math.radians(a) for a in mount))
+        inc_true = np.hstack((inc_true[:, 0:3] @ mat_bs, inc_true[:, 3:6] @ mat_bs))
     g = rng(seed, STREAM_IMU_CONST)
     # offsets are added after the draws so that they leave every drawn value unchanged
     bg = spec.gyro_bias_sigma_rps * g.standard_normal(3)

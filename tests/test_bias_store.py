@@ -73,6 +73,7 @@ def test_snapshot_saves_what_the_drive_learned_and_the_next_start_uses_it(tmp_pa
                          max_gyro_sd_deg_per_h=20.0)
     rec = bias_store.snapshot(est, s, NOW)
     assert rec is not None
+    assert rec["mount_deg"] == [0.0, 0.0, 0.0]
     bias_store.save(s.path, rec)
     assert [p.name for p in tmp_path.iterdir()] == ["b.json"]  # no temporary left behind
     tables, state = _apply({}, s, NOW + 60.0)
@@ -111,6 +112,7 @@ def test_a_loaded_file_never_raises_the_configured_prior(tmp_path: Path) -> None
     (_record(gyro_bias_deg_per_h=[1.0, 2.0]), "gyro_bias_deg_per_h is not a list of 3"),
     (_record(accel_bias_sd_mg=[0.0, 0.3, 0.3]), "not positive"),
     (_record(accel_bias_mg=[40.0, 0.0, 0.0]), "beyond 5 sigma"),
+    (_record(mount_deg=[0.0, 0.0, 90.0]), "mounted at [0.00, 0.00, 90.00] deg"),
     ([1, 2, 3], "schema ?"),
 ])
 def test_bad_files_are_refused_with_the_cause_and_change_nothing(
@@ -124,6 +126,22 @@ def test_bad_files_are_refused_with_the_cause_and_change_nothing(
     out, state = _apply(tables, s, NOW)
     assert out is tables
     assert state.startswith("refused") and why in state, state
+
+
+def test_a_file_is_used_only_for_the_imu_mount_it_was_learnt_in(tmp_path: Path) -> None:
+    """GIVEN a bias file written with the IMU mounted at (180, 0, 90) deg, and an older file
+    that names no mount,
+    WHEN the store is applied with that mount configured, and with none,
+    THEN the first is loaded with the mount and refused without it (its axes are other
+    axes); the older one is loaded without a mount and refused with one."""
+    mounted = {"imu": {"mount_roll_deg": 180.0, "mount_yaw_deg": 90.0}}
+    turned = _store(path=str(_write(tmp_path / "m.json",
+                                    _record(mount_deg=[180.0, 0.0, 90.0]))))
+    old = _store(path=str(_write(tmp_path / "o.json", _record())))
+    assert _apply(mounted, turned, NOW)[1].startswith("loaded")
+    assert "mounted at [180.00, 0.00, 90.00] deg" in _apply({}, turned, NOW)[1]
+    assert _apply({}, old, NOW)[1].startswith("loaded")
+    assert "mounted at [0.00, 0.00, 0.00] deg" in _apply(mounted, old, NOW)[1]
 
 
 def test_off_and_absent() -> None:

@@ -12,6 +12,7 @@ that pushing the same samples one by one gives.
 from __future__ import annotations
 
 import dataclasses
+import math
 import random
 from typing import Any
 
@@ -163,12 +164,17 @@ def _imu_stream(n: int, seed: int) -> list[Sample]:
     return out
 
 
-@pytest.mark.parametrize("yaw_bank", [False, True])
-def test_block_push_ends_in_the_state_per_sample_push_gives(yaw_bank: bool) -> None:
+@pytest.mark.parametrize(("yaw_bank", "mount"), [(False, False), (True, False), (False, True)])
+def test_block_push_ends_in_the_state_per_sample_push_gives(yaw_bank: bool, mount: bool
+                                                            ) -> None:
     cfg = EstimatorConfig()
     if yaw_bank:
         cfg = dataclasses.replace(cfg, yaw_bank=dataclasses.replace(cfg.yaw_bank,
                                                                     enabled="on"))
+    if mount:  # an IMU turned on the vehicle: both paths turn its increments alike
+        cfg = dataclasses.replace(cfg, imu=dataclasses.replace(
+            cfg.imu, mount_roll=math.radians(10.0), mount_pitch=math.radians(-20.0),
+            mount_yaw=math.radians(135.0)))
     one, blk = Estimator(cfg), Estimator(cfg)
     block = ImuBlock()
     stream = _imu_stream(8000, 3)

@@ -5,6 +5,7 @@ Plain dataclasses (core may import them); built by :func:`navd.config.load.build
 
 from __future__ import annotations
 
+import math
 import typing
 from dataclasses import dataclass, field, fields
 from typing import Any
@@ -120,8 +121,9 @@ class ImuSection:
     accel_vrw: float = _f(_GR["accel_vrw_mps_per_sqrt_s"], "mps_per_sqrt_s")
     gyro_bias_sd: float = _f(_GR["gyro_bias_sd_deg_per_h"], "deg_per_h")
     accel_bias_sd: float = _f(_GR["accel_bias_sd_mg"], "mg")
-    # known biases (measured = true + bias, body FRD): a calibration's offsets or biases
-    # learned on an earlier run; the initial estimate, with gyro/accel_bias_sd its 1-sigma
+    # known biases (measured = true + bias, body FRD, i.e. after the mount): a calibration's
+    # offsets or biases learned on an earlier run; the initial estimate, with
+    # gyro/accel_bias_sd its 1-sigma
     gyro_bias: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "deg_per_h")
     accel_bias: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "mg")
     gyro_bias_rw: float = _f(_GR["gyro_bias_rw_deg_per_h_per_sqrt_h"], "deg_per_h_per_sqrt_h")
@@ -130,6 +132,14 @@ class ImuSection:
     # makes that share of itself into attitude error, added to P as the net rotation grows
     # (navd/core/kalman.py, gyro_scale_allowance)
     gyro_scale_sd: float = _f(_GR["gyro_scale_sd_pct"], "pct")
+    # the IMU's axes on the vehicle, sensor -> body C_s^b as ZYX roll/pitch/yaw (as
+    # [polarization]): the IMU's attitude on the vehicle (yaw 90: its x points to the
+    # vehicle's right).  Increments are turned into the body axes where they enter the
+    # estimator, so everything after (attitude, biases, lever arm, the bias store) is the
+    # vehicle's.
+    mount_roll: float = _f(0.0, "deg")
+    mount_pitch: float = _f(0.0, "deg")
+    mount_yaw: float = _f(0.0, "deg")
     max_accel: float = _f(50.0 * G0, "mps2")
     max_rate: float = _f(2000.0, "dps")
     # at rest (IMU still over 10 s, Allan-type test), measure the gyro offset and feed it to
@@ -138,6 +148,14 @@ class ImuSection:
 
     def validate(self) -> None:
         check(0.0 <= self.gyro_scale_sd < 0.5, "imu", "gyro_scale_sd_pct", "in [0, 50) (%)")
+        for key in ("mount_roll", "mount_pitch", "mount_yaw"):
+            check(abs(getattr(self, key)) <= math.pi + 1e-9, "imu", f"{key}_deg",
+                  "in [-180, 180] (deg)")
+
+    @property
+    def mount(self) -> tuple[float, float, float]:
+        """(roll, pitch, yaw) of the IMU's mounting, rad."""
+        return (self.mount_roll, self.mount_pitch, self.mount_yaw)
 
 
 @dataclass(frozen=True)

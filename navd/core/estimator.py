@@ -127,6 +127,11 @@ class Estimator:
         self._M = v.M
         self.mat_nb[:, :] = np.eye(3)
         v.lever_b[:] = c.gnss.lever_arm
+        # the IMU's axes to the body's ([imu] mount_deg); None: the identity, nothing to turn
+        euler_to_mat_into(v.mat_bs, *c.imu.mount)
+        mounted = float(np.max(np.abs(v.mat_bs - np.eye(3)))) > 1e-12
+        self._buf[st.MOUNT + 9] = 1.0 if mounted else 0.0
+        self._mount = tuple(float(a) for a in v.mat_bs.ravel()) if mounted else None
         self._level_sum = np.zeros(9)  # sums of dvel xyz, dtheta xyz, dvel^2 xyz
         self.innov = np.full((N_INNOV, INNOV_W), math.nan)
 
@@ -424,6 +429,16 @@ class Estimator:
             if bad is not None:
                 cnt["imu_nonfinite" if bad == "imu_nonfinite" else "imu_out_of_range"] += 1
                 return False
+        m = self._mount
+        if m is not None:
+            # after the plausibility test (a rotation keeps the norms), before anything
+            # that reads an axis
+            dtx, dty, dtz = (m[0] * dtx + m[1] * dty + m[2] * dtz,
+                             m[3] * dtx + m[4] * dty + m[5] * dtz,
+                             m[6] * dtx + m[7] * dty + m[8] * dtz)
+            dvx, dvy, dvz = (m[0] * dvx + m[1] * dvy + m[2] * dvz,
+                             m[3] * dvx + m[4] * dvy + m[5] * dvz,
+                             m[6] * dvx + m[7] * dvy + m[8] * dvz)
         t_us = s.t_us
         last = self.t_us
         if last >= 0:
@@ -463,7 +478,7 @@ class Estimator:
                          self.gyro_rest.window_s):
                 self.gyro_rest.window_done(self)
         if self._stage == _WAIT:
-            self._level(s, dt)
+            self._level(dtx, dty, dtz, dvx, dvy, dvz, dt)
             return False
         st.imu_step(self._buf, t, dtx, dty, dtz, dvx, dvy, dvz, dt, self._coning,
                     self._cov_interval)
@@ -472,18 +487,20 @@ class Estimator:
         self._imu_dt_us = dt_us
         return True
 
-    def _level(self, s: ImuSample, dt: float) -> None:
-        """Average specific force and rate while waiting; levels once a fix is present."""
+    def _level(self, dtx: float, dty: float, dtz: float, dvx: float, dvy: float, dvz: float,
+               dt: float) -> None:
+        """Average specific force and rate while waiting (body-frame increments, rad and
+        m/s); levels once a fix is present."""
         ls = self._level_sum
-        ls[0] += s.dvel_x
-        ls[1] += s.dvel_y
-        ls[2] += s.dvel_z
-        ls[3] += s.dtheta_x
-        ls[4] += s.dtheta_y
-        ls[5] += s.dtheta_z
-        ls[6] += s.dvel_x * s.dvel_x
-        ls[7] += s.dvel_y * s.dvel_y
-        ls[8] += s.dvel_z * s.dvel_z
+        ls[0] += dvx
+        ls[1] += dvy
+        ls[2] += dvz
+        ls[3] += dtx
+        ls[4] += dty
+        ls[5] += dtz
+        ls[6] += dvx * dvx
+        ls[7] += dvy * dvy
+        ls[8] += dvz * dvz
         self._level_n += 1
         self._level_t += dt
         if (self._level_t >= self.cfg.init.level_time and self._pending_fix is not None

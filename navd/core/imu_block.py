@@ -150,6 +150,9 @@ def push_run(buf: Arr, rest_acc: Arr, noise: Arr, bank: Arr, has_bank: bool, t_a
             break
         if t_us <= last_t or t_us - last_t - dt_us > max_gap:
             break
+        if buf[st.MOUNT + 9] != 0.0:
+            dtx, dty, dtz = st.mount_turn(buf, dtx, dty, dtz)
+            dvx, dvy, dvz = st.mount_turn(buf, dvx, dvy, dvz)
         # rest_push would complete the window: _push_imu closes it in Python first
         if rest_completes(rest_acc, dt, window_s):
             break

@@ -64,7 +64,10 @@ DPREV = HIST + HIST_LEN * HIST_W  # previous change of the angle increment (3,) 
 FLP = DPREV + 3
 # the gyro scale-factor allowance's variance and accumulators (kalman.gyro_scale_allowance)
 SF = FLP + kalman.FLP_N
-SIZE = SF + kalman.SF_N
+# the IMU's mounting ([imu] mount_deg): C_s^b (3, 3) taking the IMU's axes to the body's,
+# then 1.0 when it is not the identity (the identity skips the product)
+MOUNT = SF + kalman.SF_N
+SIZE = MOUNT + 10
 
 
 class StateViews:
@@ -95,6 +98,7 @@ class StateViews:
         self.hist = buf[HIST:HIST + HIST_LEN * HIST_W].reshape(HIST_LEN, HIST_W)
         self.f_lp = buf[FLP:FLP + kalman.FLP_N]
         self.sf = buf[SF:SF + kalman.SF_N]
+        self.mat_bs = buf[MOUNT:MOUNT + 9].reshape(3, 3)
 
 
 @jit
@@ -121,6 +125,15 @@ def imu_step(buf: Arr, t_us: float, dtx: float, dty: float, dtz: float, dvx: flo
     for k in range(3):
         buf[o + 16 + k] = buf[RATE + k]
     return done
+
+
+@jit
+def mount_turn(buf: Arr, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """An IMU-axes vector (x, y, z) in the body's axes: C_s^b of ``[imu] mount_deg``."""
+    m = MOUNT
+    return (buf[m] * x + buf[m + 1] * y + buf[m + 2] * z,
+            buf[m + 3] * x + buf[m + 4] * y + buf[m + 5] * z,
+            buf[m + 6] * x + buf[m + 7] * y + buf[m + 8] * z)
 
 
 @jit

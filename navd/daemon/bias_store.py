@@ -12,9 +12,11 @@ File (JSON, replaced atomically)::
 
     {"schema": 1, "imu": "<imu_id>", "saved_unix_s": float, "navd": version,
      "gyro_bias_deg_per_h": [3], "gyro_bias_sd_deg_per_h": [3],
-     "accel_bias_mg": [3], "accel_bias_sd_mg": [3]}
+     "accel_bias_mg": [3], "accel_bias_sd_mg": [3], "mount_deg": [3]}
 
-Biases are body FRD, measured = true + bias.  At start (:func:`apply`), a usable file sets
+Biases are body FRD, measured = true + bias: the axes after the IMU's mounting (``[imu]
+mount_roll/pitch/yaw_deg``), which the file records as ``mount_deg`` (a file written before
+it did: no mount).  At start (:func:`apply`), a usable file sets
 ``[imu] gyro_bias_deg_per_h`` / ``accel_bias_mg`` and lowers ``gyro_bias_sd_deg_per_h`` /
 ``accel_bias_sd_mg`` to the stored 1-sigma combined with the sensor's turn-on repeatability
 (``repeat_*``), never raising them.  (The section,
@@ -22,7 +24,7 @@ Biases are body FRD, measured = true + bias.  At start (:func:`apply`), a usable
 arithmetic are in the keys' units: deg/h, mg, days.) The estimator therefore sees ordinary
 config, and a recording made by the daemon carries the biases it started with, so it replays
 exactly.  A file is refused, with a warning naming the cause, when it is unreadable, of
-another schema or IMU, older than ``max_age_days`` or dated in the future, non-finite, or
+another schema, IMU or IMU mount, older than ``max_age_days`` or dated in the future, non-finite, or
 implausible against the configured prior (beyond 5 sigma).  It is written (:func:`snapshot`,
 :func:`save`) every ``save_period_s`` and at stop, but only while every bias 1-sigma is
 within ``max_*_sd``: a run that learned nothing leaves the file as it was.
@@ -51,6 +53,11 @@ SCHEMA = 1
 _DPH = 180.0 / math.pi * 3600.0  # rad/s -> deg/h
 _MG = 1e3 / G0  # m/s^2 -> mg
 _FUTURE_TOLERANCE_S = 86_400.0  # a host clock set back by a day is not yet a bad file
+_MOUNT_TOL_DEG = 0.01  # a mount written back rounded is the same mount
+
+
+def _mount_deg(c: ImuSection) -> list[float]:
+    return [math.degrees(a) for a in c.mount]
 
 
 def _vec3(d: dict[str, Any], key: str) -> list[float]:
@@ -64,9 +71,10 @@ def _vec3(d: dict[str, Any], key: str) -> list[float]:
     return out
 
 
-def _read(path: Path, s: BiasStoreSection, prior: dict[str, float], now_unix_s: float
-          ) -> dict[str, list[float]]:
-    """The stored vectors, or ValueError naming why the file cannot be used."""
+def _read(path: Path, s: BiasStoreSection, prior: dict[str, float], mount_deg: list[float],
+          now_unix_s: float) -> dict[str, list[float]]:
+    """The stored vectors, or ValueError naming why the file cannot be used (``mount_deg``:
+    the configured ``[imu] mount_*_deg``: biases in other axes are not these axes' biases)."""
     try:
         d = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -76,6 +84,10 @@ def _read(path: Path, s: BiasStoreSection, prior: dict[str, float], now_unix_s: 
                          f"expected {SCHEMA}")
     if d.get("imu", "") != s.imu_id:
         raise ValueError(f"written for IMU {d.get('imu')!r}, this is {s.imu_id!r}")
+    stored = _vec3(d, "mount_deg") if "mount_deg" in d else [0.0, 0.0, 0.0]
+    if max(abs(a - b) for a, b in zip(stored, mount_deg, strict=True)) > _MOUNT_TOL_DEG:
+        raise ValueError(f"written for an IMU mounted at {_fmt(stored)} deg, [imu] "
+                         f"mount_roll/pitch/yaw_deg are {_fmt(mount_deg)}")
     saved = d.get("saved_unix_s")
     if not isinstance(saved, int | float) or not math.isfinite(saved):
         raise ValueError("no valid saved_unix_s")
@@ -117,7 +129,7 @@ def apply(tables: dict[str, Any], s: BiasStoreSection, imu_cfg: ImuSection, now_
                                                        c.gyro_bias_sd * _DPH)),
              "accel_bias_sd_mg": float(table.get("accel_bias_sd_mg", c.accel_bias_sd * _MG))}
     try:
-        v = _read(path, s, prior, now_unix_s)
+        v = _read(path, s, prior, _mount_deg(imu_cfg), now_unix_s)
     except ValueError as exc:
         return tables, f"refused: {path}: {exc}"
     g_sd = math.hypot(max(v["gyro_bias_sd_deg_per_h"]), from_si(s.repeat_gyro_sd, "deg_per_h"))
@@ -155,7 +167,8 @@ def snapshot(est: Estimator, s: BiasStoreSection, now_unix_s: float) -> dict[str
         return None
     return {"schema": SCHEMA, "imu": s.imu_id, "saved_unix_s": now_unix_s, "navd": __version__,
             "gyro_bias_deg_per_h": bg, "gyro_bias_sd_deg_per_h": g_sd,
-            "accel_bias_mg": ba, "accel_bias_sd_mg": a_sd}
+            "accel_bias_mg": ba, "accel_bias_sd_mg": a_sd,
+            "mount_deg": _mount_deg(est.cfg.imu)}
 
 
 def save(path: str | Path, record: dict[str, Any]) -> None:
