@@ -50,7 +50,7 @@ from navd.core.aiding.yaw_bank import YawBank, bank_enabled
 from navd.core.aiding.yaw_bank_kernels import bank_imu, main_yaw, wrap
 from navd.core.earth import geodetic_to_ecef, radii
 from navd.core.imu_block import LIM_AHEAD, LIM_BACK, PUSH_LIMITS, ImuBlock, push_run
-from navd.core.kalman import F_TAU_S, SF_FORGET_S
+from navd.core.kalman import F_TAU_S, SF_FORGET_S, SF_SCALE_Z
 from navd.core.level import level_cov
 from navd.core.output import attitude_outputs
 from navd.core.rotation import euler_to_mat_into
@@ -118,6 +118,9 @@ class Estimator:
         self.rate_b = v.rate_b
         self._q = v.q
         self.work = v.work  # (8, 3, 3) scratch, free between calls (aids use it too)
+        # the gyro scale-factor block (kalman.SF_N): the allowance, and the z gyro's scale
+        # error the course teaches (aiding/gnss_heading.py)
+        self.gyro_sf = v.sf
         self._prev_inc = v.prev_inc
         self._dprev = v.dprev
         self._acc = v.acc
@@ -215,6 +218,7 @@ class Estimator:
         self._v.f_lp[:6] = 0.0
         self._v.f_lp[8:14] = 0.0
         self._v.sf[1:13] = 0.0  # the scale allowance's net rotations start again
+        self._v.sf[SF_SCALE_Z] = 0.0  # the course learns it again (gnss_heading.py)
         for aid in self.aids:
             aid.reset()
         self.gyro_rest.reset()

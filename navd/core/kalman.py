@@ -66,8 +66,12 @@ FLP_N = 16
 # the gyro scale-factor allowance (gyro_scale_allowance): [0] the variance of each axis's
 # scale error (dimensionless^2; 0: off), [1:10] A (3, 3) row-major, column i the
 # navigation-frame attitude error per unit scale error of body axis i (rad), [10:13] the
-# squared length of each column already put into P, [13] the forgetting time constant, s
-SF_N = 14
+# squared length of each column already put into P, [13] the forgetting time constant, s,
+# [14] the body z gyro's scale error learnt from the course (navd.core.aiding.gnss_heading),
+# taken out of every increment
+SF_N = 15
+SF_YAW_Z = 1 + 3 * 2 + 2  # A[D, z]: the yaw the z gyro turned lately, rad
+SF_SCALE_Z = 14
 # car480 with 1 % per axis, seeds 1-3, heading beyond 3 sigma: no allowance 21 %; forgetting
 # in 2 / 5 / 10 / 20 / 40 s: 5.0 / 2.6 / 3.1 / 3.8 / 5.7 %; forgetting by the updates' own
 # variance ratio instead (P+/P-): 6.0 % (the course reads a turn's error as sideslip, so the
@@ -393,7 +397,7 @@ def imu_step(mat_nb: Arr, vel_n: Arr, pos: Arr, dov: Arr, bg: Arr, ba: Arr,
     """
     inc[0] = dtx - bg[0] * dt
     inc[1] = dty - bg[1] * dt
-    inc[2] = dtz - bg[2] * dt
+    inc[2] = (dtz - bg[2] * dt) / (1.0 + sf[SF_SCALE_Z])
     inc[3] = dvx - ba[0] * dt
     inc[4] = dvy - ba[1] * dt
     inc[5] = dvz - ba[2] * dt

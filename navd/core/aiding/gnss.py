@@ -94,6 +94,9 @@ class GnssAiding:
             # learned sideslip per lateral acceleration and its 1-sigma (ground profile)
             "sideslip_deg_per_mps2": [round(math.degrees(self.course.slip_gain), 3),
                                       round(math.degrees(self.course.slip_sd), 3)],
+            # ... and the z gyro's scale error learnt beside it (%, and its 1-sigma), taken
+            # out of the z increments
+            "gyro_z_scale_pct": [round(100.0 * x, 3) for x in self.course.gyro_z_scale],
             # at rest with a MEMS gyro: GNSS fixes leave the heading alone (its sigma grows)
             "heading_held": self.hold >= 0,
             # how long position / velocity updates have been refused (s; reset to GNSS

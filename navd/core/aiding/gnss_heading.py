@@ -41,6 +41,7 @@ from navd.core.aiding.base import (
 )
 from navd.core.aiding.heading_alignment import HeadingAlignment
 from navd.core.chi2 import chi2_quantile
+from navd.core.kalman import SF_SCALE_Z, SF_YAW_Z
 from navd.core.rotation import exp_into, mat_to_euler, mul3_into
 from navd.types import GnssSample
 
@@ -127,6 +128,18 @@ def course_sd(speed_sd_mps: float, speed_h_mps: float) -> float:
 _SLIP_SD0 = math.radians(3.0)
 _SLIP_MIN_ALAT = 0.5
 _SLIP_Q = math.radians(0.001) ** 2
+# the z gyro's scale error, learnt beside the sideslip gain (_learn): the least net yaw
+# turned (rad, the allowance's forgetting sum) that teaches it, and a random walk per
+# update (the sensitivity drifts with temperature).  Its prior is [imu] gyro_scale_sd_pct.
+# car480 with scale errors drawn at 3 % per axis, seeds 1-5, heading beyond 3 sigma / RMS:
+# not learnt 12.8 % / 0.370 deg; learnt, walk 1e-4 / 3e-5 / 1e-5 per update: 1.0 % /
+# 0.118, 0.118, 0.118 deg; the other car cases within 0.01 deg (docs/results.md)
+_SF_MIN_TURN = 0.1
+_SF_Q = 1e-4 ** 2
+# the learners' state: sideslip gain (rad per m/s^2) and its variance, the epoch's lateral
+# acceleration (m/s^2), the z gyro's scale error (dimensionless), the covariance of the two
+# and the scale error's variance
+_K, _PKK, _ALAT, _S, _PKS, _PSS = range(6)
 
 
 class CourseHeading:
@@ -153,30 +166,41 @@ class CourseHeading:
         self._lever_var = c.gnss.lever_arm_sd * c.gnss.lever_arm_sd
         self.status = "off"
         self.rejects = 0
-        # [sideslip per lateral acceleration (rad per m/s^2), its variance, the last usable
-        # epoch's lateral acceleration (m/s^2)]: course = heading + gain * a_lat for a car
-        # whose tyres slip in turns (see _learn_slip).  An array, not float attributes: the
-        # epoch loop rebinds no Python objects (the allocation test counts them).
-        self._slip = np.array([0.0, _SLIP_SD0 * _SLIP_SD0, 0.0])
+        # the sideslip per lateral acceleration (course = heading + gain * a_lat for a car
+        # whose tyres slip in turns) and the z gyro's scale error, learnt together (_learn;
+        # indices _K.._PSS).  An array, not float attributes: the epoch loop rebinds no
+        # Python objects (the allocation test counts them).
+        self._sf_var0 = c.imu.gyro_scale_sd ** 2
+        self._slip = np.zeros(6)
+        self._learn_reset()
         # when the heading may be flagged aligned (not on one sample)
         self.align = HeadingAlignment(cfg)
 
     @property
     def slip_gain(self) -> float:
         """Learned sideslip per lateral acceleration, rad per m/s^2."""
-        return float(self._slip[0])
+        return float(self._slip[_K])
 
     @property
     def slip_sd(self) -> float:
         """Its 1-sigma, rad per m/s^2."""
-        return math.sqrt(float(self._slip[1]))
+        return math.sqrt(float(self._slip[_PKK]))
+
+    @property
+    def gyro_z_scale(self) -> tuple[float, float]:
+        """The z gyro's learnt scale error and its 1-sigma (dimensionless)."""
+        return float(self._slip[_S]), math.sqrt(float(self._slip[_PSS]))
+
+    def _learn_reset(self) -> None:
+        sl = self._slip
+        sl[:] = 0.0
+        sl[_PKK] = _SLIP_SD0 * _SLIP_SD0
+        sl[_PSS] = self._sf_var0
 
     def reset(self) -> None:
         self.rejects = 0
         self.align.reset()
-        self._slip[0] = 0.0
-        self._slip[1] = _SLIP_SD0 * _SLIP_SD0
-        self._slip[2] = 0.0
+        self._learn_reset()
 
     def usable(self, est: Estimator, g: GnssSample) -> bool:
         """Whether heading ~ course now (docs/design.md §4); sets :attr:`status`."""
@@ -200,7 +224,7 @@ class CourseHeading:
         if abs(yaw_rate) * speed > c.heading.max_lat_accel:
             self.status = "waiting: lateral acceleration too high"
             return False
-        self._slip[2] = yaw_rate * speed  # centripetal, positive to the right
+        self._slip[_ALAT] = yaw_rate * speed  # centripetal, positive to the right
         # Backwards motion in body x is reversing only at reversing speeds; faster than that
         # it means our yaw is off by more than 90 degrees, which the course must correct.
         # Only an aligned (confirmed) heading may excuse it: an unconfirmed yaw that points
@@ -240,7 +264,8 @@ class CourseHeading:
         H, z, P = est.meas_H, est.meas_z, est.P
         cfg = self.cfg
         al = self.align
-        al.check_course(est, g, s_sd, float(self._slip[0]), float(self._slip[1]), self.sd_beta)
+        al.check_course(est, g, s_sd, float(self._slip[_K]), float(self._slip[_PKK]),
+                        self.sd_beta)
         if al.realign_requested:
             # backwards for longer than reversing explains: the yaw is wrong by > 90 deg
             self.align_yaw(est, g.vel_n, g.vel_e, s_sd, extra_sd=cfg.init.heading_sd)
@@ -271,11 +296,12 @@ class CourseHeading:
             self.align_yaw(est, vn_c, ve_c, s_sd)
             return
         # the course of the body x axis: the GNSS course minus the learned sideslip
-        a_lat = float(self._slip[2])
-        d = float(self._slip[0]) * a_lat
+        a_lat = float(self._slip[_ALAT])
+        d = float(self._slip[_K]) * a_lat
         cd, sd_ = math.cos(d), math.sin(d)
         vn_c, ve_c = cd * vn_c + sd_ * ve_c, -sd_ * vn_c + cd * ve_c
-        sd_beta = math.sqrt(self.sd_beta * self.sd_beta + a_lat * a_lat * float(self._slip[1]))
+        sd_beta = math.sqrt(self.sd_beta * self.sd_beta
+                            + a_lat * a_lat * float(self._slip[_PKK]))
         # course alone first: its own gate decides whether it joins the velocity update
         st.course_row(est.buf, 3, vn_c, ve_c, s_sd, sd_beta)
         if swapped:
@@ -286,7 +312,7 @@ class CourseHeading:
         sc -= 2.0 * (H[3, 0] * P[0, 2] + H[3, 1] * P[1, 2])
         sc += est.meas_R[3, 3]  # the course's own noise: speed, sideslip, lever arm
         course_ok = (not self._gating) or zc * zc / sc <= self._gate1
-        self._learn_slip(zc, sc, a_lat)
+        self._learn(est, zc, sc, a_lat)
         rec = est.innov[INNOV_COURSE]
         rec[0] = zc
         rec[INNOV_NIS] = zc * zc / sc
@@ -311,27 +337,47 @@ class CourseHeading:
             self.align_yaw(est, vn_c, ve_c, s_sd)
             cnt["heading_reset"] += 1
 
-    def _learn_slip(self, zc: float, sc: float, a_lat: float) -> None:
-        """One scalar Kalman step for the sideslip gain from this course innovation.
+    def _learn(self, est: Estimator, zc: float, sc: float, a_lat: float) -> None:
+        """One Kalman step for the sideslip gain k and the z gyro's scale error s from this
+        course innovation (a state pair outside the filter, as the drag coefficient is).
 
         With course chi = psi + k a_lat, the innovation of the slip-corrected course is
-        zc = psi_hat - chi + k_hat a_lat = (psi_hat - psi) - (k - k_hat) a_lat, so
-        -zc observes (k - k_hat) a_lat with the rest of the innovation variance as noise.
-        A heading error is common to left and right turns while the slip changes sign with
-        a_lat, so turns both ways separate the two.  Only turns teach anything: below
-        0.5 m/s^2 the epoch is skipped.
+        zc = psi_hat - chi + k_hat a_lat = (psi_hat - psi) - (k - k_hat) a_lat.  A scale
+        error makes the heading error (psi_hat - psi) = (s - s_hat) A: A the yaw the z gyro
+        turned lately, the down component of the allowance's forgetting sum
+        (kalman.gyro_scale_allowance; the course updates remove older error), and s_hat is
+        taken out of every z increment (kalman.imu_step, ``sf[SF_SCALE_Z]``).  So zc observes
+        [-a_lat, A] [k - k_hat, s - s_hat] with the rest of the innovation variance as noise.
+        Both change sign with the turn, which is why a slip learner alone read a scale
+        error as slip (3 % scale errors: 12.8 % of headings beyond 3 sigma); they differ in
+        shape: the slip is v w and ends with the turn, the scale's error grows with the angle
+        turned and outlasts the turn until the course has taken it out, and turns at
+        different speeds differ in their ratio.  A heading error common to left and right
+        turns is neither.  An epoch with less than 0.5 m/s^2 of lateral acceleration and
+        0.1 rad of recent turn teaches nothing and is skipped.
         """
-        if abs(a_lat) < _SLIP_MIN_ALAT or not math.isfinite(zc):
+        sl = self._slip
+        sf = est.gyro_sf
+        hs = float(sf[SF_YAW_Z]) if self._sf_var0 > 0.0 else 0.0  # A
+        if (abs(a_lat) < _SLIP_MIN_ALAT and abs(hs) < _SF_MIN_TURN) or not math.isfinite(zc):
             return
-        h = a_lat
-        pk = float(self._slip[1])
-        r = max(sc - h * h * pk, 1e-12)  # the innovation variance without the gain's part
-        s = h * h * pk + r
+        hk = -a_lat
+        pkk, pks, pss = float(sl[_PKK]), float(sl[_PKS]), float(sl[_PSS])
+        phk = pkk * hk + pks * hs
+        phs = pks * hk + pss * hs
+        hph = hk * phk + hs * phs
+        r = max(sc - hph, 1e-12)  # the innovation variance without the learners' part
+        s = hph + r
         if zc * zc > self._gate1 * s:
             return  # an outlier teaches nothing
-        gain = pk * h / s
-        self._slip[0] -= gain * zc
-        self._slip[1] = (1.0 - gain * h) * pk + _SLIP_Q
+        gk = phk / s
+        gs = phs / s
+        sl[_K] += gk * zc
+        sl[_S] += gs * zc
+        sl[_PKK] = pkk - gk * phk + _SLIP_Q
+        sl[_PKS] = pks - gk * phs
+        sl[_PSS] = pss - gs * phs + _SF_Q
+        sf[SF_SCALE_Z] = sl[_S]
 
     def note_not_tried(self, est: Estimator, g: GnssSample) -> None:
         """Course record before the epoch's updates (``Estimator.push`` has marked it not
