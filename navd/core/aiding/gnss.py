@@ -23,6 +23,7 @@ from navd.core.aiding.adaptive_noise import AdaptiveNoise
 from navd.core.aiding.base import INNOV_POS
 from navd.core.aiding.gnss_heading import CourseHeading
 from navd.core.aiding.gnss_recovery import LockoutRecovery
+from navd.core.aiding.mount_check import PitchMountCheck
 from navd.core.chi2 import chi2_quantile
 from navd.core.earth import OMEGA_IE, mat_ne_into
 from navd.types import GnssSample
@@ -55,6 +56,8 @@ class GnssAiding:
         self.cfg = cfg
         self._gate3 = chi2_quantile(c.filter.gate_prob, 3)
         self.course = CourseHeading(cfg)
+        # the IMU's pitch on a ground vehicle, from the velocity in body axes (a check)
+        self.mount_check = PitchMountCheck(cfg)
         self.recovery = LockoutRecovery(cfg)
         self.adaptive = AdaptiveNoise(cfg)
         self._mctls: Mctls | None = None
@@ -80,6 +83,7 @@ class GnssAiding:
         self._absurd_in_row = 0
         self.last_speed_h = math.inf
         self.course.reset()
+        self.mount_check.reset()
         self.recovery.reset()
         self.adaptive.reset()
         if self._mctls is not None:
@@ -87,6 +91,10 @@ class GnssAiding:
 
     def start(self, est: Estimator, fix: GnssSample) -> None:
         pass
+
+    def _pitch_on_vehicle(self) -> list[float] | None:
+        e = self.mount_check.estimate
+        return None if e is None else [round(math.degrees(x), 3) for x in e]
 
     def status(self, est: Estimator) -> dict[str, object]:
         return {
@@ -97,6 +105,10 @@ class GnssAiding:
             # ... and the z gyro's scale error learnt beside it (%, and its 1-sigma), taken
             # out of the z increments
             "gyro_z_scale_pct": [round(100.0 * x, 3) for x in self.course.gyro_z_scale],
+            # the velocity's mean pitch above the body x axis and its 1-sigma (deg; ground
+            # profile, straight driving): an IMU pitched on the vehicle shows here (the
+            # counter imu_pitch_mount_suspect says when it is beyond 3 sigma)
+            "imu_pitch_on_vehicle_deg": self._pitch_on_vehicle(),
             # at rest with a MEMS gyro: GNSS fixes leave the heading alone (its sigma grows)
             "heading_held": self.hold >= 0,
             # how long position / velocity updates have been refused (s; reset to GNSS
@@ -176,6 +188,8 @@ class GnssAiding:
         elif c.gnss.use_velocity and vel_scale > 0.0:
             self.course.fuse_with_velocity(est, g, s_sd / math.sqrt(vel_scale), self.hold,
                                            self.hold_mask)
+            if self.course.status == "active":
+                self.mount_check.on_epoch(est, g, s_sd)
         # how far this epoch's updates turned the yaw (alignment integrity without a course)
         d_yaw = math.atan2(m_nb[1, 0], m_nb[0, 0]) - yaw0
         self.course.align.note_yaw_moved(est, (d_yaw + math.pi) % (2.0 * math.pi)

@@ -136,6 +136,10 @@ _SLIP_Q = math.radians(0.001) ** 2
 # 0.118, 0.118, 0.118 deg; the other car cases within 0.01 deg (docs/results.md)
 _SF_MIN_TURN = 0.1
 _SF_Q = 1e-4 ** 2
+# ... and never beyond this many prior sigmas (consumer: 5 %, the datasheets' +-3 % at 25 C
+# and their temperature drift): a course that is not the heading (a plane run as a ground
+# vehicle: the X8 folder learnt -5.6 % with a sigma of 0.4 %) must not turn it into a gyro
+_SF_MAX_SD = 5.0
 # the learners' state: sideslip gain (rad per m/s^2) and its variance, the epoch's lateral
 # acceleration (m/s^2), the z gyro's scale error (dimensionless), the covariance of the two
 # and the scale error's variance
@@ -170,7 +174,8 @@ class CourseHeading:
         # whose tyres slip in turns) and the z gyro's scale error, learnt together (_learn;
         # indices _K.._PSS).  An array, not float attributes: the epoch loop rebinds no
         # Python objects (the allocation test counts them).
-        self._sf_var0 = c.imu.gyro_scale_sd ** 2
+        self._sf_sd0 = c.imu.gyro_scale_sd
+        self._sf_var0 = self._sf_sd0 * self._sf_sd0
         self._slip = np.zeros(6)
         self._learn_reset()
         # when the heading may be flagged aligned (not on one sample)
@@ -373,7 +378,8 @@ class CourseHeading:
         gk = phk / s
         gs = phs / s
         sl[_K] += gk * zc
-        sl[_S] += gs * zc
+        lim = _SF_MAX_SD * self._sf_sd0
+        sl[_S] = min(max(float(sl[_S]) + gs * zc, -lim), lim)
         sl[_PKK] = pkk - gk * phk + _SLIP_Q
         sl[_PKS] = pks - gk * phs
         sl[_PSS] = pss - gs * phs + _SF_Q
