@@ -382,7 +382,7 @@ class CourseHeading:
         sl[_S] = min(max(float(sl[_S]) + gs * zc, -lim), lim)
         sl[_PKK] = pkk - gk * phk + _SLIP_Q
         sl[_PKS] = pks - gk * phs
-        sl[_PSS] = pss - gs * phs + _SF_Q
+        sl[_PSS] = pss - gs * phs + (_SF_Q if self._sf_var0 > 0.0 else 0.0)
         sf[SF_SCALE_Z] = sl[_S]
 
     def note_not_tried(self, est: Estimator, g: GnssSample) -> None:
