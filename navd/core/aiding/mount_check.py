@@ -103,7 +103,7 @@ class PitchMountCheck:
                  + c1 * (P[1, 0] * c0 + P[1, 1] * c1 + P[1, 2] * c2)
                  + c2 * (P[2, 0] * c0 + P[2, 1] * c1 + P[2, 2] * c2))
         v_white = s_sd * s_sd / (vx * vx)
-        w = 1.0 / (max(v_att, 0.0) + v_white)
+        w = 1.0 / max(v_att + v_white, 1e-12)  # a receiver may report 0 m/s of noise
         lam = math.exp(-dt / _TAU_S)
         s[_W] = lam * s[_W] + w
         s[_WT] = lam * s[_WT] + w * math.atan2(vz, vx)
