@@ -10,6 +10,9 @@ the per-sample path, mount included, is in tests/test_io_mavlink_lane.py.
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 from bench_util import load_benchmark
@@ -18,6 +21,7 @@ from firmware_sim import generate, load_scenario
 from firmware_sim.scenario import ImuSpec
 from firmware_sim.score import score_run
 from firmware_sim.sensors import corrupt_imu
+from navd.cli.replay import main as replay_main
 from navd.config import EstimatorConfig, load_config
 from navd.core import state as st
 from navd.core.estimator import Estimator
@@ -139,3 +143,24 @@ def test_a_car_imu_pitched_on_the_car_is_told_by_the_velocity(stated: bool) -> N
         assert abs(mean) <= 3.0 * sd and flagged == 0, (pitch, flagged)
     else:
         assert abs(mean - 2.0) <= min(0.6, 3.0 * sd) and flagged == 1, (pitch, flagged)
+
+
+def test_replay_says_when_the_imu_is_pitched_on_the_car(tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]
+                                                       ) -> None:
+    """GIVEN the car drive (240 s) with its IMU pitched up 2 deg, written as replay CSVs,
+    WHEN ``navd replay`` runs it without a mount, and with ``imu.mount_pitch_deg=2``,
+    THEN the first ends with a line giving the pitch (2 deg within 0.6) and the setting
+    to write; the second has no such line."""
+    run = generate(load_scenario("car480", {"duration_s": 240.0, "imu.mount_pitch_deg": 2.0}),
+                   seed=1, progress=False)
+    run.write_csv(tmp_path)
+    args = ["--imu", str(tmp_path / "imu.csv"), "--gnss", str(tmp_path / "gnss.csv"),
+            "--out", str(tmp_path / "sol.csv"), "--quiet", "--set=filter.profile=ground"]
+    assert replay_main(args) == 0
+    line = [x for x in capsys.readouterr().err.splitlines() if "pitched on the vehicle" in x]
+    assert len(line) == 1, line
+    m = re.search(r"rose (-?[0-9.]+) \+- ([0-9.]+) deg .*mount_pitch_deg=(-?[0-9.]+)", line[0])
+    assert m is not None and abs(float(m.group(1)) - 2.0) <= 0.6, line
+    assert replay_main([*args, "--set=imu.mount_pitch_deg=2"]) == 0
+    assert "pitched on the vehicle" not in capsys.readouterr().err

@@ -165,6 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     counters = dict(est.counters)
     print(f"navd replay: {rows} solution rows -> {out}; skipped rows: {len(rep.issues)}; "
           f"estimator: {counters}", file=sys.stderr)
+    _mount_hint(est)
     rc = _exit_code(rows, est)
     return rc or _skipped_code(rep, a.max_skipped)
 
@@ -425,12 +426,24 @@ def _replay_log(a: argparse.Namespace) -> int:
     tmp.replace(out)
     print(f"navd replay: {rows} solution rows -> {out}; course update: {est.course_status}; "
           f"estimator: {dict(est.counters)}", file=sys.stderr)
+    _mount_hint(est)
     if rows and len(data.reference) >= 2:
         print(f"navd replay: {tilt.agreement_line(data)}", file=sys.stderr)
     elif rows:
         print("navd replay: no roll/pitch RMS: the log carries no onboard attitude to compare "
               "with", file=sys.stderr)
     return _exit_code(rows, est)
+
+
+def _mount_hint(est: Estimator) -> None:
+    """Say so when the velocity said the IMU is pitched on the (ground) vehicle
+    (core/aiding/mount_check.py): the one mounting a replay can find out for its user."""
+    pitch = est.status().get("imu_pitch_on_vehicle_deg")
+    if est.counters.get("imu_pitch_mount_suspect") and isinstance(pitch, list):
+        print(f"navd replay: driving straight, the velocity rose {pitch[0]:.2f} +- "
+              f"{pitch[1]:.2f} deg above the IMU's x axis: the IMU is pitched on the vehicle? "
+              f"(--set imu.mount_pitch_deg={pitch[0]:.1f}; roll and pitch are the IMU's "
+              "until then)", file=sys.stderr)
 
 
 LOG_LEVER_ARM_SD_M = 0.05  # 1-sigma of an antenna position an autopilot's parameters state
