@@ -130,7 +130,7 @@ class Estimator:
         self._M = v.M
         self.mat_nb[:, :] = np.eye(3)
         v.lever_b[:] = c.gnss.lever_arm
-        # the IMU's axes to the body's ([imu] mount_deg); None: the identity, nothing to turn
+        # the IMU's axes to the body's ([imu] mount_*_deg); None: the identity, nothing to turn
         euler_to_mat_into(v.mat_bs, *c.imu.mount)
         mounted = float(np.max(np.abs(v.mat_bs - np.eye(3)))) > 1e-12
         self._buf[st.MOUNT + 9] = 1.0 if mounted else 0.0

@@ -64,7 +64,7 @@ DPREV = HIST + HIST_LEN * HIST_W  # previous change of the angle increment (3,) 
 FLP = DPREV + 3
 # the gyro scale-factor allowance's variance and accumulators (kalman.gyro_scale_allowance)
 SF = FLP + kalman.FLP_N
-# the IMU's mounting ([imu] mount_deg): C_s^b (3, 3) taking the IMU's axes to the body's,
+# the IMU's mounting ([imu] mount_*_deg): C_s^b (3, 3) taking the IMU's axes to the body's,
 # then 1.0 when it is not the identity (the identity skips the product)
 MOUNT = SF + kalman.SF_N
 SIZE = MOUNT + 10
@@ -129,7 +129,7 @@ def imu_step(buf: Arr, t_us: float, dtx: float, dty: float, dtz: float, dvx: flo
 
 @jit
 def mount_turn(buf: Arr, x: float, y: float, z: float) -> tuple[float, float, float]:
-    """An IMU-axes vector (x, y, z) in the body's axes: C_s^b of ``[imu] mount_deg``."""
+    """An IMU-axes vector (x, y, z) in the body's axes: C_s^b of ``[imu] mount_*_deg``."""
     m = MOUNT
     return (buf[m] * x + buf[m + 1] * y + buf[m + 2] * z,
             buf[m + 3] * x + buf[m + 4] * y + buf[m + 5] * z,

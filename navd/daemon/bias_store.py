@@ -74,7 +74,8 @@ def _vec3(d: dict[str, Any], key: str) -> list[float]:
 def _read(path: Path, s: BiasStoreSection, prior: dict[str, float], mount_deg: list[float],
           now_unix_s: float) -> dict[str, list[float]]:
     """The stored vectors, or ValueError naming why the file cannot be used (``mount_deg``:
-    the configured ``[imu] mount_*_deg``: biases in other axes are not these axes' biases)."""
+    the configured ``[imu] mount_*_deg``, degrees: biases in other axes are not these
+    axes' biases)."""
     try:
         d = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
