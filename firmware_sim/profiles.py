@@ -117,7 +117,8 @@ def ground_profile(t: Arr, spec: GroundSpec) -> Profile:
     Body roll follows the lateral (centripetal) acceleration ``a_lat = v_h * yaw_rate``
     (positive to the right): ``roll = roll_gain * a_lat`` (a negative gain leans the car out
     of the turn, as a real car does).  Sideslip ``beta = sideslip_gain * a_lat`` turns the
-    velocity away from body x, so GNSS course = yaw + beta.
+    velocity away from body x, so GNSS course = yaw + beta.  A water current adds to the
+    horizontal velocity (a boat's crab); sway adds wave roll and pitch (:class:`GroundSpec`).
     """
     speed, _ = targets(t, spec.speed0_mps, _abs_targets(spec.speed, 1.0))
     yaw, yaw_rate = targets(t, spec.yaw0_deg * DEG, _turn_targets(spec.yaw0_deg * DEG,
@@ -127,7 +128,12 @@ def ground_profile(t: Arr, spec: GroundSpec) -> Profile:
     a_lat = v_h * yaw_rate
     roll = spec.roll_gain_rad_per_mps2 * a_lat
     course = yaw + spec.sideslip_gain_rad_per_mps2 * a_lat
-    vel = np.stack([v_h * np.cos(course), v_h * np.sin(course), -speed * np.sin(pitch)], axis=1)
+    vel = np.stack([v_h * np.cos(course) + spec.current_n_mps,
+                    v_h * np.sin(course) + spec.current_e_mps, -speed * np.sin(pitch)], axis=1)
+    if spec.sway_deg > 0.0:
+        w = 2.0 * np.pi / spec.sway_period_s
+        roll = roll + spec.sway_deg * DEG * np.sin(w * t)
+        pitch = pitch + 0.5 * spec.sway_deg * DEG * np.sin(w / 0.73 * t + 1.0)
     return Profile(np.stack([roll, pitch, yaw], axis=1), vel)
 
 

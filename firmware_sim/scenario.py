@@ -131,9 +131,15 @@ class StaticSpec(_Where):
 
 @dataclass(frozen=True)
 class GroundSpec(_Where):
-    """Ground vehicle: speed, heading and road-grade profiles; body roll from lateral accel.
+    """Ground or surface vehicle: speed, heading and road-grade profiles; body roll from
+    lateral accel.
 
-    ``speed`` targets are in m/s, ``grade`` targets are pitch angles in deg.
+    ``speed`` targets are in m/s (through the water for a boat), ``grade`` targets are pitch
+    angles in deg.  ``current_n/e_mps``: a boat's water current, added to the velocity along
+    the heading, so the GNSS course differs from the heading by a crab angle that depends on
+    the heading (0 for a car).  ``sway_deg`` > 0 rolls and pitches the body about the
+    profile's attitude with that amplitude (periods ``sway_period_s`` and 0.73 times it):
+    waves.
     """
 
     kind: str = _f("", "ground")
@@ -144,6 +150,10 @@ class GroundSpec(_Where):
     grade: tuple[TargetEvent, ...] = _f("deg (pitch targets)", ())
     roll_gain_rad_per_mps2: float = _f("rad/(m/s^2)", 0.0)
     sideslip_gain_rad_per_mps2: float = _f("rad/(m/s^2)", 0.0)
+    current_n_mps: float = _f("m/s", 0.0)
+    current_e_mps: float = _f("m/s", 0.0)
+    sway_deg: float = _f("deg", 0.0)
+    sway_period_s: float = _f("s", 6.0)
 
 
 @dataclass(frozen=True)
@@ -595,6 +605,8 @@ def _validate(sc: Scenario) -> None:
             _check(ev.to >= 0.0, f"trajectory.speed[{i}].to", "speed target must be >= 0 m/s")
         for i, ev in enumerate(tr.grade):
             _check(abs(ev.to) < 45.0, f"trajectory.grade[{i}].to", "pitch must be < 45 deg")
+        _check(0.0 <= tr.sway_deg <= 30.0, "trajectory.sway_deg", "must be in [0, 30] deg")
+        _check(tr.sway_period_s > 0.0, "trajectory.sway_period_s", "must be > 0 s")
     elif isinstance(tr, MultirotorSpec):
         _check_events(tr.vel, "trajectory.vel")
         _check_events(tr.turns, "trajectory.turns")

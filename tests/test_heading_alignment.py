@@ -109,10 +109,8 @@ def _checks(est: Any, course_off_deg: float, n: int, t0_s: float) -> None:
     chi = yaw - math.radians(course_off_deg)
     al = est.gnss.course.align
     for k in range(n):
-        g = GnssSample(t_us=int((t0_s + 0.1 * k) * 1e6), lat_rad=0.8, lon_rad=0.1, alt_m=0.0,
-                       vel_n=2.0 * math.cos(chi), vel_e=2.0 * math.sin(chi), vel_d=0.0,
-                       h_acc_m=1.0, v_acc_m=1.0, vel_acc_mps=0.1)
-        al.check_course(est, g, 0.1, 0.0, 0.0, math.radians(0.3))
+        al.check_course(est, int((t0_s + 0.1 * k) * 1e6), 2.0 * math.cos(chi),
+                        2.0 * math.sin(chi), 0.1, est.gnss.course.learn, math.radians(0.3))
 
 
 def test_a_yaw_off_within_each_checks_sigma_but_not_the_means_is_unflagged() -> None:

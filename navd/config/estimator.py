@@ -19,7 +19,7 @@ from navd.units import G0
 class FilterSection:
     mode: str = _f("completed", choices=("traditional", "completed"))
     robust: str = _f("gate", choices=("none", "gate", "mctls"))
-    profile: str = _f("ground", choices=("ground", "fixed_wing", "multirotor"))
+    profile: str = _f("ground", choices=("ground", "boat", "fixed_wing", "multirotor"))
     cov_interval: float = _f(10.0, "ms")
     coning: bool = _f(True)
     gate_prob: float = _f(0.9999)
@@ -206,6 +206,9 @@ class HeadingSection:
     max_lat_accel: float = _f(4.0, "mps2")
     sideslip_sd: float = _f(0.3, "deg")
     crab_sd: float = _f(0.0, "deg")  # fixed-wing allowance; 0 disables the update there
+    # boat profile: prior 1-sigma per axis of the water current, learnt from the course as
+    # the boat turns (navd/core/aiding/course_learner.py); 0: heading = course over ground
+    current_sd: float = _f(1.0, "mps")
     reset_after: int = _f(10)
     align_speed: float = _f(5.0, "mps")
     max_reverse_speed: float = _f(4.0, "mps")
@@ -216,6 +219,9 @@ class HeadingSection:
     # heading (GnssAiding._heading_hold in navd/core/aiding/gnss.py says why)
     hold_static: bool = _f(True)
     hold_max_speed: float = _f(0.3, "mps")
+
+    def validate(self) -> None:
+        check(self.current_sd >= 0.0, "heading", "current_sd_mps", ">= 0 (m/s)")
 
 
 @dataclass(frozen=True)

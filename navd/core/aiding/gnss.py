@@ -105,6 +105,10 @@ class GnssAiding:
             # ... and the z gyro's scale error learnt beside it (%, and its 1-sigma), taken
             # out of the z increments
             "gyro_z_scale_pct": [round(100.0 * x, 3) for x in self.course.gyro_z_scale],
+            # a boat's water current north, east and their 1-sigmas (m/s; boat profile):
+            # heading = course through the water
+            "water_current_mps": ([round(x, 3) for x in self.course.water_current]
+                                  if self.course.learn.current else None),
             # the velocity's mean pitch above the body x axis and its 1-sigma (deg; ground
             # profile, straight driving): an IMU pitched on the vehicle shows here (the
             # counter imu_pitch_mount_suspect says when it is beyond 3 sigma)
@@ -175,6 +179,9 @@ class GnssAiding:
 
         m_nb = est.mat_nb
         yaw0 = math.atan2(m_nb[1, 0], m_nb[0, 0])
+        self.course.learn.begin_epoch(g.t_us * 1e-6, yaw0)
+        bg = est.bias_g
+        rate0 = m_nb[2, 0] * bg[0] + m_nb[2, 1] * bg[1] + m_nb[2, 2] * bg[2]
         if c.gnss.use_position:
             swapped = est.state_at(g.t_us) is True
             m = st.fill_position(est.buf, g.lat_rad, g.lon_rad, g.alt_m, h_sd, v_sd)
@@ -191,9 +198,13 @@ class GnssAiding:
             if self.course.status == "active":
                 self.mount_check.on_epoch(est, g, s_sd)
         # how far this epoch's updates turned the yaw (alignment integrity without a course)
-        d_yaw = math.atan2(m_nb[1, 0], m_nb[0, 0]) - yaw0
-        self.course.align.note_yaw_moved(est, (d_yaw + math.pi) % (2.0 * math.pi)
-                                         - math.pi)
+        yaw1 = math.atan2(m_nb[1, 0], m_nb[0, 0])
+        d_yaw = (yaw1 - yaw0 + math.pi) % (2.0 * math.pi) - math.pi
+        self.course.align.note_yaw_moved(est, d_yaw)
+        # a boat's learnt heading error moves with the yaw; the yaw sigma stays above it
+        self.course.learn.end_epoch(
+            est.P, d_yaw, yaw1,
+            m_nb[2, 0] * bg[0] + m_nb[2, 1] * bg[1] + m_nb[2, 2] * bg[2] - rate0)
         self.recovery.after_epoch(est, g.t_us, h_sd, v_sd, s_sd, math.isfinite(g.vel_d))
         self.adaptive.after_epoch(est, math.isfinite(g.vel_d), s_sd)
         return True

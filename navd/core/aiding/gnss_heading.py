@@ -39,6 +39,7 @@ from navd.core.aiding.base import (
     REJECTED,
     SINGULAR,
 )
+from navd.core.aiding.course_learner import CE, CN, CourseLearner, K, S
 from navd.core.aiding.heading_alignment import HeadingAlignment
 from navd.core.chi2 import chi2_quantile
 from navd.core.kalman import SF_SCALE_Z, SF_YAW_Z
@@ -107,43 +108,32 @@ def course_row(H: Arr, z: Arr, R: Arr, row: int, mat_nb: Arr, rate_b: Arr, lever
         R[row, row] = sd_h * sd_h / vh2 + sd_beta * sd_beta
 
 
+def rate_var_down(est: Estimator) -> float:
+    """The main filter's variance of its gyro bias about down (c P_bb c^T, c the third row
+    of C_b^n), (rad/s)^2."""
+    m, P = est.mat_nb, est.P
+    v = 0.0
+    for i in range(3):
+        for j in range(3):
+            v += m[2, i] * float(P[9 + i, 9 + j]) * m[2, j]
+    return v
+
+
 def course_may_align(cfg: EstimatorConfig, bank: bool) -> bool:
-    """Whether a GNSS course may set an unknown heading: ground vehicles, and fixed-wing with
+    """Whether a GNSS course may set an unknown heading: ground vehicles and boats (the
+    course through the water, its uncertainty widened by the current's), and fixed-wing with
     a crab allowance (``[heading] crab_sd_deg`` > 0) or without a yaw bank (``bank``); a
     multirotor's course is never its heading and a fixed-wing's differs by the crab angle (up
     to +-30 deg in wind), which the yaw bank resolves from turns instead
     (:mod:`navd.core.aiding.yaw_bank`)."""
     p = cfg.filter.profile
-    return p == "ground" or (p == "fixed_wing" and (cfg.heading.crab_sd > 0.0 or not bank))
+    return p in ("ground", "boat") or (
+        p == "fixed_wing" and (cfg.heading.crab_sd > 0.0 or not bank))
 
 
 def course_sd(speed_sd_mps: float, speed_h_mps: float) -> float:
     """1-sigma of the course from a per-axis speed accuracy, rad (sigma_v / |v_h|)."""
     return speed_sd_mps / speed_h_mps
-
-
-# sideslip gain: prior sigma (rad per m/s^2; cars slip up to a few deg per m/s^2), the
-# smallest lateral acceleration that teaches it, and a random walk per update so that a
-# changed load or tyre is followed
-_SLIP_SD0 = math.radians(3.0)
-_SLIP_MIN_ALAT = 0.5
-_SLIP_Q = math.radians(0.001) ** 2
-# the z gyro's scale error, learnt beside the sideslip gain (_learn): the least net yaw
-# turned (rad, the allowance's forgetting sum) that teaches it, and a random walk per
-# update (the sensitivity drifts with temperature).  Its prior is [imu] gyro_scale_sd_pct.
-# car480 with scale errors drawn at 3 % per axis, seeds 1-5, heading beyond 3 sigma / RMS:
-# not learnt 12.8 % / 0.370 deg; learnt, walk 1e-4 / 3e-5 / 1e-5 per update: 1.0 % /
-# 0.118, 0.118, 0.118 deg; the other car cases within 0.01 deg (docs/results.md)
-_SF_MIN_TURN = 0.1
-_SF_Q = 1e-4 ** 2
-# ... and never beyond this many prior sigmas (consumer: 5 %, the datasheets' +-3 % at 25 C
-# and their temperature drift): a course that is not the heading (a plane run as a ground
-# vehicle: the X8 folder learnt -5.6 % with a sigma of 0.4 %) must not turn it into a gyro
-_SF_MAX_SD = 5.0
-# the learners' state: sideslip gain (rad per m/s^2) and its variance, the epoch's lateral
-# acceleration (m/s^2), the z gyro's scale error (dimensionless), the covariance of the two
-# and the scale error's variance
-_K, _PKK, _ALAT, _S, _PKS, _PSS = range(6)
 
 
 class CourseHeading:
@@ -163,49 +153,46 @@ class CourseHeading:
         self._gate4 = chi2_quantile(p, 4)
         self._gating = c.filter.robust != "none"
         self.enabled = c.filter.mode == "completed" and (
-            c.filter.profile == "ground"
+            c.filter.profile in ("ground", "boat")
             or (c.filter.profile == "fixed_wing" and c.heading.crab_sd > 0.0))
-        self.sd_beta = (c.heading.sideslip_sd if c.filter.profile == "ground"
+        self.sd_beta = (c.heading.sideslip_sd if c.filter.profile in ("ground", "boat")
                         else c.heading.crab_sd)
         self._lever_var = c.gnss.lever_arm_sd * c.gnss.lever_arm_sd
         self.status = "off"
         self.rejects = 0
         # the sideslip per lateral acceleration (course = heading + gain * a_lat for a car
-        # whose tyres slip in turns) and the z gyro's scale error, learnt together (_learn;
-        # indices _K.._PSS).  An array, not float attributes: the epoch loop rebinds no
-        # Python objects (the allocation test counts them).
-        self._sf_sd0 = c.imu.gyro_scale_sd
-        self._sf_var0 = self._sf_sd0 * self._sf_sd0
-        self._slip = np.zeros(6)
-        self._learn_reset()
+        # whose tyres slip in turns), the z gyro's scale error and a boat's water current,
+        # learnt from the course innovations
+        self.learn = CourseLearner(cfg)
         # when the heading may be flagged aligned (not on one sample)
         self.align = HeadingAlignment(cfg)
 
     @property
     def slip_gain(self) -> float:
         """Learned sideslip per lateral acceleration, rad per m/s^2."""
-        return float(self._slip[_K])
+        return float(self.learn.x[K])
 
     @property
     def slip_sd(self) -> float:
         """Its 1-sigma, rad per m/s^2."""
-        return math.sqrt(float(self._slip[_PKK]))
+        return math.sqrt(float(self.learn.P[K, K]))
 
     @property
     def gyro_z_scale(self) -> tuple[float, float]:
         """The z gyro's learnt scale error and its 1-sigma (dimensionless)."""
-        return float(self._slip[_S]), math.sqrt(float(self._slip[_PSS]))
+        return float(self.learn.x[S]), math.sqrt(float(self.learn.P[S, S]))
 
-    def _learn_reset(self) -> None:
-        sl = self._slip
-        sl[:] = 0.0
-        sl[_PKK] = _SLIP_SD0 * _SLIP_SD0
-        sl[_PSS] = self._sf_var0
+    @property
+    def water_current(self) -> tuple[float, float, float, float]:
+        """The learnt current north, east and their 1-sigmas, m/s (boat profile)."""
+        x, P = self.learn.x, self.learn.P
+        return (float(x[CN]), float(x[CE]), math.sqrt(float(P[CN, CN])),
+                math.sqrt(float(P[CE, CE])))
 
     def reset(self) -> None:
         self.rejects = 0
         self.align.reset()
-        self._learn_reset()
+        self.learn.reset()
 
     def usable(self, est: Estimator, g: GnssSample) -> bool:
         """Whether heading ~ course now (docs/design.md §4); sets :attr:`status`."""
@@ -216,7 +203,9 @@ class CourseHeading:
                            "disabled: traditional mode" if c.filter.mode == "traditional"
                            else "disabled: fixed_wing without crab allowance")
             return False
-        speed = math.hypot(g.vel_n, g.vel_e)
+        # through the water (boat), over the ground (others: the current is 0)
+        wn, we = self.learn.water(g.vel_n, g.vel_e)
+        speed = math.hypot(wn, we)
         if speed < c.heading.min_speed:
             self.status = "waiting: speed below threshold"
             return False
@@ -229,12 +218,12 @@ class CourseHeading:
         if abs(yaw_rate) * speed > c.heading.max_lat_accel:
             self.status = "waiting: lateral acceleration too high"
             return False
-        self._slip[_ALAT] = yaw_rate * speed  # centripetal, positive to the right
+        self.learn.set_a_lat(yaw_rate * speed)  # centripetal, positive to the right
         # Backwards motion in body x is reversing only at reversing speeds; faster than that
         # it means our yaw is off by more than 90 degrees, which the course must correct.
         # Only an aligned (confirmed) heading may excuse it: an unconfirmed yaw that points
         # backwards is more likely wrong (heading_alignment.py).
-        vx = m[0, 0] * g.vel_n + m[1, 0] * g.vel_e + m[2, 0] * g.vel_d
+        vx = m[0, 0] * wn + m[1, 0] * we + m[2, 0] * g.vel_d
         if vx < 0.0 and speed < c.heading.max_reverse_speed and est.heading_aligned:
             self.status = "waiting: reversing"
             return False
@@ -269,19 +258,20 @@ class CourseHeading:
         H, z, P = est.meas_H, est.meas_z, est.P
         cfg = self.cfg
         al = self.align
-        al.check_course(est, g, s_sd, float(self._slip[_K]), float(self._slip[_PKK]),
-                        self.sd_beta)
+        lrn = self.learn
+        wn, we = lrn.water(g.vel_n, g.vel_e)
+        al.check_course(est, g.t_us, wn, we, s_sd, lrn, self.sd_beta)
         if al.realign_requested:
             # backwards for longer than reversing explains: the yaw is wrong by > 90 deg
-            self.align_yaw(est, g.vel_n, g.vel_e, s_sd, extra_sd=cfg.init.heading_sd)
+            self.align_yaw(est, wn, we, s_sd, extra_sd=cfg.init.heading_sd)
         use_course = self.usable(est, g)
         if (not use_course and not al.yaw_set
                 and cfg.init.heading_source == "gnss_course"
                 and course_may_align(cfg, est.yaw_bank is not None)
-                and math.hypot(g.vel_n, g.vel_e) >= cfg.heading.align_speed):
+                and math.hypot(wn, we) >= cfg.heading.align_speed):
             # Without course updates the first fast course still beats a yaw of zero as a
             # starting point (crab makes it coarse: keep the yaw variance wide).
-            self.align_yaw(est, g.vel_n, g.vel_e, s_sd, extra_sd=cfg.init.heading_sd)
+            self.align_yaw(est, wn, we, s_sd, extra_sd=cfg.init.heading_sd)
         m, swapped = self._fill_velocity(est, g, s_sd)
         if not use_course:
             if swapped:
@@ -292,21 +282,27 @@ class CourseHeading:
             al.check_observed(est, g.t_us)
             return
         # lever-arm-free GNSS velocity for the course, v_gnss - C (w x l); the velocity
-        # innovation just computed is v_hat + C (w x l) - v_gnss
-        vn_c = g.vel_n - (z[0] - (est.vel_n[0] - g.vel_n))
-        ve_c = g.vel_e - (z[1] - (est.vel_n[1] - g.vel_e))
+        # innovation just computed is v_hat + C (w x l) - v_gnss; less the learnt current
+        vn_c, ve_c = lrn.water(g.vel_n - (z[0] - (est.vel_n[0] - g.vel_n)),
+                               g.vel_e - (z[1] - (est.vel_n[1] - g.vel_e)))
         if not al.yaw_set:
             if swapped:
                 est.state_restore()
             self.align_yaw(est, vn_c, ve_c, s_sd)
             return
         # the course of the body x axis: the GNSS course minus the learned sideslip
-        a_lat = float(self._slip[_ALAT])
-        d = float(self._slip[_K]) * a_lat
+        a_lat = lrn.a_lat
+        m_nb = est.mat_nb
+        yaw = math.atan2(m_nb[1, 0], m_nb[0, 0])
+        # the INS velocity through the water: the boat learner's row (smooth, unlike the
+        # fix's)
+        ins_n, ins_e = lrn.water(float(est.vel_n[0]), float(est.vel_n[1]))
+        wn, we = vn_c, ve_c
+        d = float(lrn.x[K]) * a_lat
         cd, sd_ = math.cos(d), math.sin(d)
         vn_c, ve_c = cd * vn_c + sd_ * ve_c, -sd_ * vn_c + cd * ve_c
-        sd_beta = math.sqrt(self.sd_beta * self.sd_beta
-                            + a_lat * a_lat * float(self._slip[_PKK]))
+        var_learn = lrn.course_var(a_lat, yaw, ins_n, ins_e)
+        sd_beta = math.sqrt(self.sd_beta * self.sd_beta + var_learn)
         # course alone first: its own gate decides whether it joins the velocity update
         st.course_row(est.buf, 3, vn_c, ve_c, s_sd, sd_beta)
         if swapped:
@@ -317,7 +313,17 @@ class CourseHeading:
         sc -= 2.0 * (H[3, 0] * P[0, 2] + H[3, 1] * P[1, 2])
         sc += est.meas_R[3, 3]  # the course's own noise: speed, sideslip, lever arm
         course_ok = (not self._gating) or zc * zc / sc <= self._gate1
-        self._learn(est, zc, sc, a_lat)
+        turned = float(est.gyro_sf[SF_YAW_Z])
+        if lrn.current:
+            # across the heading through the water, m/s (CourseLearner.step_lateral)
+            y = -math.sin(yaw) * wn + math.cos(yaw) * we
+            r = (wn * wn + we * we) * (float(est.meas_R[3, 3]) - var_learn)
+            learnt = lrn.step_lateral(y, r, self._gate1, a_lat, turned, yaw, ins_n, ins_e,
+                                      g.t_us * 1e-6)
+        else:
+            learnt = lrn.step(zc, sc, self._gate1, a_lat, turned)
+        if learnt:
+            est.gyro_sf[SF_SCALE_Z] = lrn.x[S]
         rec = est.innov[INNOV_COURSE]
         rec[0] = zc
         rec[INNOV_NIS] = zc * zc / sc
@@ -342,49 +348,6 @@ class CourseHeading:
             self.align_yaw(est, vn_c, ve_c, s_sd)
             cnt["heading_reset"] += 1
 
-    def _learn(self, est: Estimator, zc: float, sc: float, a_lat: float) -> None:
-        """One Kalman step for the sideslip gain k and the z gyro's scale error s from this
-        course innovation (a state pair outside the filter, as the drag coefficient is).
-
-        With course chi = psi + k a_lat, the innovation of the slip-corrected course is
-        zc = psi_hat - chi + k_hat a_lat = (psi_hat - psi) - (k - k_hat) a_lat.  A scale
-        error makes the heading error (psi_hat - psi) = (s - s_hat) A: A the yaw the z gyro
-        turned lately, the down component of the allowance's forgetting sum
-        (kalman.gyro_scale_allowance; the course updates remove older error), and s_hat is
-        taken out of every z increment (kalman.imu_step, ``sf[SF_SCALE_Z]``).  So zc observes
-        [-a_lat, A] [k - k_hat, s - s_hat] with the rest of the innovation variance as noise.
-        Both change sign with the turn, which is why a slip learner alone read a scale
-        error as slip (3 % scale errors: 12.8 % of headings beyond 3 sigma); they differ in
-        shape: the slip is v w and ends with the turn, the scale's error grows with the angle
-        turned and outlasts the turn until the course has taken it out, and turns at
-        different speeds differ in their ratio.  A heading error common to left and right
-        turns is neither.  An epoch with less than 0.5 m/s^2 of lateral acceleration and
-        0.1 rad of recent turn teaches nothing and is skipped.
-        """
-        sl = self._slip
-        sf = est.gyro_sf
-        hs = float(sf[SF_YAW_Z]) if self._sf_var0 > 0.0 else 0.0  # A
-        if (abs(a_lat) < _SLIP_MIN_ALAT and abs(hs) < _SF_MIN_TURN) or not math.isfinite(zc):
-            return
-        hk = -a_lat
-        pkk, pks, pss = float(sl[_PKK]), float(sl[_PKS]), float(sl[_PSS])
-        phk = pkk * hk + pks * hs
-        phs = pks * hk + pss * hs
-        hph = hk * phk + hs * phs
-        r = max(sc - hph, 1e-12)  # the innovation variance without the learners' part
-        s = hph + r
-        if zc * zc > self._gate1 * s:
-            return  # an outlier teaches nothing
-        gk = phk / s
-        gs = phs / s
-        sl[_K] += gk * zc
-        lim = _SF_MAX_SD * self._sf_sd0
-        sl[_S] = min(max(float(sl[_S]) + gs * zc, -lim), lim)
-        sl[_PKK] = pkk - gk * phk + _SLIP_Q
-        sl[_PKS] = pks - gk * phs
-        sl[_PSS] = pss - gs * phs + (_SF_Q if self._sf_var0 > 0.0 else 0.0)
-        sf[SF_SCALE_Z] = sl[_S]
-
     def note_not_tried(self, est: Estimator, g: GnssSample) -> None:
         """Course record before the epoch's updates (``Estimator.push`` has marked it not
         tried): wrap(psi_hat - chi) of the raw GNSS velocity for monitoring (overwritten when
@@ -405,8 +368,9 @@ class CourseHeading:
 
     def align_yaw(self, est: Estimator, vn: float, ve: float, s_sd: float,
                   extra_sd: float = 0.0) -> None:
-        """Rotate the attitude about down so yaw equals the course of (vn, ve) m/s; reset
-        the yaw covariance (row/column 2 of P) to the course's uncertainty."""
+        """Rotate the attitude about down so yaw equals the course of (vn, ve) m/s (through
+        the water on a boat); reset the yaw covariance (row/column 2 of P) to the course's
+        uncertainty (and the learnt current's)."""
         _, _, yaw = mat_to_euler(est.mat_nb)
         chi = math.atan2(ve, vn)
         d = (yaw - chi + math.pi) % (2.0 * math.pi) - math.pi
@@ -421,7 +385,10 @@ class CourseHeading:
         P[2, :] = 0.0
         P[:, 2] = 0.0
         sd = s_sd / math.hypot(vn, ve)
-        P[2, 2] = sd * sd + self.sd_beta**2 + (1.0 * math.pi / 180.0) ** 2 + extra_sd**2
+        P[2, 2] = self.learn.yaw_set(
+            sd * sd + self.sd_beta**2 + (1.0 * math.pi / 180.0) ** 2 + extra_sd**2,
+            self.learn.a_lat, float(est.gyro_sf[SF_YAW_Z]), chi, vn, ve, est.t_us * 1e-6,
+            rate_var_down(est))
         self.rejects = 0
         # the flag waits for the course to agree over time (heading_alignment.py)
         self.align.yaw_given(est, from_course=True)

@@ -9,7 +9,7 @@ reversing below ``[heading] max_reverse_speed_mps`` and blocked every correction
 What.  Giving the filter a yaw (from a course, from observability) and *flagging* it aligned
 are separate steps.  The yaw is set as before; the flag waits for evidence over time:
 
-ground profile (course ~ heading)
+ground and boat profiles (course ~ heading)
     every GNSS epoch at >= ``_CHECK_SPEED`` (the default ``[heading] min_speed_mps`` of the
     course update; a configured higher one leaves the slower epochs to the checks alone)
     outside fast turns is a *course check*: d = wrap(yaw -
@@ -58,7 +58,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from navd.config import EstimatorConfig
-from navd.types import GnssSample
+from navd.core.aiding.course_learner import CourseLearner, K
 
 if TYPE_CHECKING:
     from navd.core.estimator import Estimator
@@ -87,7 +87,7 @@ class HeadingAlignment:
 
     def __init__(self, cfg: EstimatorConfig) -> None:
         self.cfg = cfg
-        self.course_checks = cfg.filter.profile == "ground"
+        self.course_checks = cfg.filter.profile in ("ground", "boat")
         # traditional mode does not take course as heading: there a failed check only drops
         # the flag, the yaw is left to the filter
         self.may_realign = cfg.filter.mode == "completed"
@@ -160,16 +160,17 @@ class HeadingAlignment:
             s[_OK_T0] = -1.0
             s[_WIN_N] = 0.0
 
-    def check_course(self, est: Estimator, g: GnssSample, s_sd: float, slip_gain: float,
-                     slip_gain_var: float, sd_beta: float) -> None:
-        """One epoch's course check (ground profile, yaw set); may set the flag or request a
-        realignment (:attr:`realign_requested`).  ``s_sd``: per-axis speed sigma, m/s;
-        ``slip_gain``, ``slip_gain_var``: the learned sideslip per lateral acceleration
-        (rad per m/s^2) and its variance; ``sd_beta``: the configured sideslip sigma, rad."""
+    def check_course(self, est: Estimator, t_us: int, vn: float, ve: float, s_sd: float,
+                     learn: CourseLearner, sd_beta: float) -> None:
+        """One epoch's course check (ground and boat profiles, yaw set); may set the flag or
+        request a realignment (:attr:`realign_requested`).  ``vn, ve``: the GNSS velocity
+        (through the water on a boat: less the learnt current), m/s; ``s_sd``: per-axis
+        speed sigma, m/s; ``learn``: the learnt sideslip (and current); ``sd_beta``: the
+        configured sideslip sigma, rad."""
         s = self._s
         if not self.course_checks or s[_ORIGIN] == _NONE or est.yaw_bank is not None:
             return
-        speed = math.hypot(g.vel_n, g.vel_e)
+        speed = math.hypot(vn, ve)
         if speed < _CHECK_SPEED:
             s[_WIN_N] = 0.0  # the window holds consecutive checks only
             return
@@ -180,10 +181,10 @@ class HeadingAlignment:
         if abs(yaw_rate) > c.max_yaw_rate or abs(yaw_rate) * speed > c.max_lat_accel:
             s[_WIN_N] = 0.0
             return
-        t = g.t_us * 1e-6
+        t = t_us * 1e-6
         a_lat = yaw_rate * speed
         yaw = math.atan2(m[1, 0], m[0, 0])
-        d = ((yaw - math.atan2(g.vel_e, g.vel_n) + slip_gain * a_lat + math.pi)
+        d = ((yaw - math.atan2(ve, vn) + float(learn.x[K]) * a_lat + math.pi)
              % (2.0 * math.pi) - math.pi)
         if abs(d) >= 0.5 * math.pi:
             s[_OK_N] = 0.0
@@ -199,7 +200,7 @@ class HeadingAlignment:
             return
         s[_BACK_N] = 0.0
         var_c = (s_sd / speed) ** 2
-        var_y = float(est.P[2, 2]) + sd_beta * sd_beta + a_lat * a_lat * slip_gain_var
+        var_y = float(est.P[2, 2]) + sd_beta * sd_beta + learn.course_var(a_lat, yaw, vn, ve)
         var = var_y + var_c
         drift = self._watch(d, var_c, var_y)
         if drift and est.heading_aligned:

@@ -52,14 +52,15 @@ FORMATS = ("csv", "ulog", "dataflash", "tlog", "x8")
 
 
 # MAVLink MAV_TYPE (HEARTBEAT.type; PX4's MAV_TYPE parameter) -> navd's filter.profile.
-# Types without a profile that fits (VTOL, which flies both ways; boats, which crab in a
-# current; airships, submarines) map to nothing: the replay then keeps the configured one.
+# Types without a profile that fits (VTOL, which flies both ways; airships, submarines) map
+# to nothing: the replay then keeps the configured one.
 MAV_TYPE_PROFILE = {
     1: "fixed_wing",                                   # FIXED_WING
     2: "multirotor", 3: "multirotor", 4: "multirotor",  # QUADROTOR, COAXIAL, HELICOPTER
     13: "multirotor", 14: "multirotor", 15: "multirotor",  # HEXA-, OCTO-, TRICOPTER
     29: "multirotor", 35: "multirotor", 43: "multirotor",  # DODECA-, DECA-, GENERIC_MULTIROTOR
     10: "ground",                                      # GROUND_ROVER
+    11: "boat",                                        # SURFACE_BOAT
 }
 MAV_TYPE_NAMES = {
     0: "GENERIC", 1: "FIXED_WING", 2: "QUADROTOR", 3: "COAXIAL", 4: "HELICOPTER",

@@ -1,0 +1,345 @@
+"""What makes the GNSS course differ from the heading, learnt from the course innovations.
+
+A small Kalman filter beside the main one (as the rotor-drag coefficient is), fed the
+course innovation ``zc = wrap(psi_hat - chi')`` of every epoch whose course is used
+(:class:`navd.core.aiding.gnss_heading.CourseHeading`); ``chi'`` is the course of the
+lever-arm-free GNSS velocity minus the learnt current, turned back by the learnt sideslip.
+Estimates (``x``; the learner's errors are taken out after every step):
+
+====  =====================================================================================
+k     sideslip per lateral acceleration, rad per m/s^2 (course = heading + k a_lat: a car
+      whose tyres slip in turns)
+s     the z gyro's scale error (dimensionless; taken out of every z increment by
+      ``kalman.imu_step``, ``sf[SF_SCALE_Z]``)
+c_N   water current, NED m/s (``boat`` profile): the hull moves along its heading through
+c_E   the water, so heading = course of (v_gnss - c) - k a_lat
+e     the main filter's heading error psi_hat - psi, rad (``boat`` profile)
+====  =====================================================================================
+
+Linear model, with ``w`` the water-relative horizontal velocity and ``A`` the yaw the z gyro
+turned lately (the allowance's forgetting sum, ``sf[SF_YAW_Z]``)::
+
+    zc = e - a_lat dk + A ds + [w_E, -w_N] / |w|^2 dc + v
+
+(chi(w + dc) = chi(w) + [-w_E, w_N] dc / |w|^2.)  Cars (profiles other than ``boat``) learn
+k and s only and treat the heading error as noise: it does not persist against k and s,
+which change sign with the turn.  A current does not: on a straight leg it is one unknown
+with the heading error (a 0.6 m/s current across a boat at 3 m/s is an 11 deg crab), so a
+learner that took ``e`` for white noise would learn a current no data holds and the main
+filter, told the course is good, would claim the crab as heading.  So the boat's learner
+carries ``e`` as a state: it drifts with the main filter's own yaw variance growth between
+epochs, moves with every correction the main filter applies (a known shift), and the
+current separates from it only as the heading changes (a turn shows the crab changing).
+Its variance P_ee is then what course and gyro together say about the heading; the main
+filter's yaw variance is never left below it (:meth:`CourseLearner.end_epoch`), because
+the main filter takes the remaining crab uncertainty as white noise and would otherwise
+average it away on a straight leg.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from navd.config import EstimatorConfig
+
+Arr = npt.NDArray[np.float64]
+
+K, S, CN, CE, E, D = range(6)
+_N = 6
+
+# sideslip gain: prior sigma (rad per m/s^2; cars slip up to a few deg per m/s^2), the
+# smallest lateral acceleration that teaches it, and a random walk per update so that a
+# changed load or tyre is followed
+SLIP_SD0 = math.radians(3.0)
+SLIP_MIN_ALAT = 0.5
+SLIP_Q = math.radians(0.001) ** 2
+# the z gyro's scale error: the least net yaw turned (rad, the allowance's forgetting sum)
+# that teaches it (cars), and a random walk per update (the sensitivity drifts with
+# temperature).  Its prior is [imu] gyro_scale_sd_pct.  car480 with scale errors drawn at
+# 3 % per axis, seeds 1-5, heading beyond 3 sigma / RMS: not learnt 12.8 % / 0.370 deg;
+# learnt, walk 1e-4 / 3e-5 / 1e-5 per update: 1.0 % / 0.118, 0.118, 0.118 deg; the other
+# car cases within 0.01 deg (docs/results.md)
+SF_MIN_TURN = 0.1
+SF_Q = 1e-4 ** 2
+# ... and never beyond this many prior sigmas (consumer: 5 %, the datasheets' +-3 % at 25 C
+# and their temperature drift): a course that is not the heading (a plane run as a ground
+# vehicle: the X8 folder learnt -5.6 % with a sigma of 0.4 %) must not turn it into a gyro
+SF_MAX_SD = 5.0
+# the current's random walk, m^2/s^3: a tide turns over hours, ~0.1 m/s in 10 minutes
+_CURRENT_Q = 0.1 * 0.1 / 600.0
+# scalar slots of ``_v``: the epoch's lateral acceleration (m/s^2), the main filter's yaw
+# variance after the last epoch (rad^2), the time of the last epoch (s), whether e is
+# defined (the yaw has been set), whether it was set during this epoch and the yaw it was
+# set to (rad)
+_ALAT, _YAW_END, _T, _E_SET, _SET_NOW, _YAW_SET, _VLP, _T_LP = range(8)
+# the speed in the boat's row is low-passed (s): its epoch-to-epoch noise (INS, 10 % in the
+# first seconds) reads as speed changes, which separate the crab's current from the heading
+_V_TAU = 3.0
+
+
+class CourseLearner:
+    """Sideslip gain and z gyro scale (every ground-like profile), water current and the
+    heading error it hides (``boat``); see the module doc.  Arrays only: the epoch loop
+    rebinds no Python objects (the allocation test counts them)."""
+
+    def __init__(self, cfg: EstimatorConfig) -> None:
+        self._sf_sd0 = cfg.imu.gyro_scale_sd
+        self._sf_var0 = self._sf_sd0 * self._sf_sd0
+        sd_c = cfg.heading.current_sd if cfg.filter.profile == "boat" else 0.0
+        self._c_var0 = sd_c * sd_c
+        # e's white noise (the gyro's) and d's walk (the gyro bias's), per second
+        self._q_e = cfg.imu.gyro_arw * cfg.imu.gyro_arw
+        self._q_d = cfg.imu.gyro_bias_rw * cfg.imu.gyro_bias_rw
+        # the boat learns k, s, c and e; other profiles k and s
+        self.n = _N if self._c_var0 > 0.0 else 2
+        self.x = np.zeros(_N)
+        self.P = np.zeros((_N, _N))
+        self._h = np.zeros(_N)
+        self._ph = np.zeros(_N)
+        self._v = np.zeros(8)
+        self.reset()
+
+    def reset(self) -> None:
+        self.x[:] = 0.0
+        self.P[:, :] = 0.0
+        self.P[K, K] = SLIP_SD0 * SLIP_SD0
+        self.P[S, S] = self._sf_var0
+        if self.n == _N:
+            # a hull does not slip as a tyre does, and in a turn the slip and the current
+            # explain the same lateral velocity: the boat learns no slip gain (its leeway
+            # is in [heading] sideslip_sd_deg)
+            self.P[K, K] = 0.0
+            self.P[CN, CN] = self._c_var0
+            self.P[CE, CE] = self._c_var0
+        self._v[:] = 0.0
+
+    @property
+    def current(self) -> bool:
+        """Whether the water current (and the heading error) are learnt."""
+        return self.n == _N
+
+    @property
+    def a_lat(self) -> float:
+        return float(self._v[_ALAT])
+
+    def set_a_lat(self, a_lat: float) -> None:
+        self._v[_ALAT] = a_lat
+
+    def water(self, vn: float, ve: float) -> tuple[float, float]:
+        """GNSS (ground) velocity minus the learnt current, NED m/s."""
+        return vn - float(self.x[CN]), ve - float(self.x[CE])
+
+    def _boat_regressors(self, a_lat: float, yaw_turned: float, yaw: float,
+                         wn: float, we: float) -> float:
+        """The lateral-velocity model's row at the estimate (boat), see :meth:`step_lateral`;
+        returns the speed through the water along the learnt heading, m/s."""
+        h = self._h
+        e = float(self.x[E])
+        se, ce = math.sin(e), math.cos(e)
+        # the learnt heading yaw - e and its unit vector
+        ul_n, ul_e = math.cos(yaw - e), math.sin(yaw - e)
+        speed = max(float(self._v[_VLP]), 0.1)
+        h[K] = speed * a_lat
+        h[S] = 0.0  # the scale error enters through e (begin_epoch)
+        h[CN] = -math.sin(yaw) + se * ul_n
+        h[CE] = math.cos(yaw) + se * ul_e
+        h[E] = -speed * ce
+        h[D] = 0.0
+        return speed
+
+    def course_var(self, a_lat: float, yaw: float, wn: float, we: float) -> float:
+        """Variance the learnt sideslip (and current) leave in the course, rad^2, at the
+        estimated heading ``yaw`` (rad) and water velocity ``wn, we`` (m/s)."""
+        if self.n != _N:
+            return a_lat * a_lat * float(self.P[K, K])
+        v = self._boat_regressors(a_lat, 0.0, yaw, wn, we)
+        return self._quad(self._h, (K, CN, CE)) / (v * v)
+
+    def _quad(self, h: Arr, idx: tuple[int, ...]) -> float:
+        P = self.P
+        q = 0.0
+        for i in idx:
+            for j in idx:
+                q += h[i] * float(P[i, j]) * h[j]
+        return q
+
+    def step(self, zc: float, sc: float, gate: float, a_lat: float,
+             yaw_turned: float) -> bool:
+        """One Kalman step for k and s from the course innovation ``zc`` (rad; profiles
+        other than ``boat``); whether it updated.
+
+        ``sc``: the main filter's variance of zc (rad^2), ``gate``: chi-square(1) bound,
+        ``a_lat``: lateral acceleration (m/s^2), ``yaw_turned``: A (rad).  An epoch with less
+        than 0.5 m/s^2 of lateral acceleration and 0.1 rad of recent turn teaches nothing and
+        is skipped; the rest of the innovation variance (sc less the learners' part) is the
+        noise: zc = -a_lat dk + A ds + (heading error, tilt, course noise).
+        """
+        turned = yaw_turned if self._sf_var0 > 0.0 else 0.0
+        if (abs(a_lat) < SLIP_MIN_ALAT and abs(turned) < SF_MIN_TURN) or not math.isfinite(zc):
+            return False
+        h = self._h
+        h[K] = -a_lat
+        h[S] = turned
+        return self._update(zc, sc, gate, True)
+
+    def step_lateral(self, y: float, r: float, gate: float, a_lat: float,
+                     yaw_turned: float, yaw: float, wn: float, we: float, t_s: float) -> bool:
+        """One Kalman step for k, s, the current and e (boat); whether it updated.
+
+        ``y``: the water velocity's component across the main filter's heading ``yaw``
+        (rad), n_hat = (-sin yaw, cos yaw): ``y = n_hat . (v_gnss - C (w x l) - c_hat)``, m/s.
+        With the true water velocity V u(psi + k a_lat) (u the unit vector of an angle, V
+        the speed through the water) and psi = yaw - e, exactly::
+
+            y = n_hat . dc - V sin(e - k a_lat) - V A ds + v,   v ~ N(0, r)
+
+        (dc = c - c_hat; the scale error's heading error A ds as in :meth:`step`).  Linear
+        in the current, unlike the course angle (a 1 m/s current at 3 m/s turns the course
+        by 20 deg), and its row comes from the estimated heading and the INS velocity less
+        the current (``wn, we``, m/s), not from the measured velocity: a row that turned
+        with the fix's noise made the current look observable on a straight leg, where only
+        the crab (the current across the heading, with the heading error) is.  The row is
+        taken at the estimate e_hat, V = u(yaw - e_hat) . w: e_hat carries every correction
+        the main filter made since the yaw was set, so a row at e = 0 would read each of
+        them as a turn of the boat and learn the current along the track from it.  ``r``:
+        m^2/s^2; ``gate``: chi-square(1) bound.
+        """
+        if not math.isfinite(y):
+            return False
+        v = self._v
+        e0 = float(self.x[E])
+        along = math.cos(yaw - e0) * wn + math.sin(yaw - e0) * we
+        if math.isfinite(along):
+            v[_VLP] += (along - float(v[_VLP])) * min(
+                max(t_s - float(v[_T_LP]), 0.0) / _V_TAU, 1.0)
+            v[_T_LP] = t_s
+        speed = self._boat_regressors(a_lat, yaw_turned, yaw, wn, we)
+        e = float(self.x[E])
+        k = float(self.x[K])
+        # the row is linear in the current and in e, but their product is in the model
+        # too: V sin e with V = u . (v - c) carries (u . dc) e, whose variance (current
+        # along the heading times heading error) is the row's error while both are wide
+        P = self.P
+        un, ue = math.cos(yaw - e), math.sin(yaw - e)
+        var_along = (un * un * float(P[CN, CN]) + 2.0 * un * ue * float(P[CN, CE])
+                     + ue * ue * float(P[CE, CE]))
+        r += var_along * float(P[E, E])
+        return self._update(y + speed * math.sin(e - k * a_lat), r, gate, False)
+
+    def _update(self, y: float, r: float, gate: float, rest_of_sc: bool) -> bool:
+        """The Kalman step with the row in ``_h``; ``rest_of_sc``: ``r`` is the whole
+        innovation variance, of which the learners' part is not noise (cars)."""
+        n = self.n
+        h = self._h
+        P = self.P
+        ph = self._ph
+        for i in range(n):
+            a = 0.0
+            for j in range(n):
+                a += float(P[i, j]) * h[j]
+            ph[i] = a
+        hph = 0.0
+        for i in range(n):
+            hph += h[i] * ph[i]
+        if rest_of_sc:
+            r = max(r - hph, 1e-12)
+        s = hph + r
+        if y * y > gate * s:
+            return False  # an outlier teaches nothing
+        x = self.x
+        for i in range(n):
+            g = ph[i] / s
+            x[i] += g * y
+            for j in range(i, n):
+                P[i, j] = P[i, j] - g * ph[j]
+                P[j, i] = P[i, j]
+        lim = SF_MAX_SD * self._sf_sd0
+        x[S] = min(max(float(x[S]), -lim), lim)
+        if n != _N:
+            P[K, K] += SLIP_Q
+        if self._sf_var0 > 0.0:
+            P[S, S] += SF_Q
+        return True
+
+    def begin_epoch(self, t_s: float, yaw: float) -> None:
+        """Before the epoch's updates (boat), the main filter's yaw ``yaw`` rad: e drifts at
+        the rate d since the last epoch, plus the gyro's white noise, plus the scale error
+        times the yaw turned; d and the current by their walks."""
+        v = self._v
+        if self.n != _N or not v[_E_SET]:
+            return
+        dt = min(max(t_s - float(v[_T]), 0.0), 10.0)
+        turned = (yaw - float(v[_YAW_END]) + math.pi) % (2.0 * math.pi) - math.pi
+        v[_T] = t_s
+        x, P = self.x, self.P
+        x[E] += x[D] * dt
+        # P <- F P F^T with F = I + dt (row e, column d) + turned (row e, column s)
+        for j in range(_N):
+            P[E, j] += dt * P[D, j] + turned * P[S, j]
+        for i in range(_N):
+            P[i, E] += dt * P[i, D] + turned * P[i, S]
+        P[E, E] += self._q_e * dt
+        P[D, D] += self._q_d * dt
+        P[CN, CN] += _CURRENT_Q * dt
+        P[CE, CE] += _CURRENT_Q * dt
+
+    def end_epoch(self, P_main: Arr, d_yaw: float, yaw: float, d_rate: float) -> None:
+        """After the epoch's updates (boat): the main filter turned its yaw by ``d_yaw`` rad
+        to ``yaw`` rad (e moves with it, a known shift; from where it was set when that
+        happened this epoch) and its gyro bias about down by ``d_rate`` rad/s (d moves the
+        other way); its yaw variance is not left below P_ee."""
+        v = self._v
+        if self.n != _N or not v[_E_SET]:
+            return
+        if v[_SET_NOW]:
+            v[_SET_NOW] = 0.0
+            d_yaw = (yaw - float(v[_YAW_SET]) + math.pi) % (2.0 * math.pi) - math.pi
+        self.x[E] += d_yaw
+        self.x[D] -= d_rate
+        v[_YAW_END] = yaw
+        pee = float(self.P[E, E])
+        if P_main[2, 2] < pee:
+            P_main[2, 2] = pee
+
+    def yaw_set(self, p22: float, a_lat: float, yaw_turned: float, yaw: float,
+                wn: float, we: float, t_s: float, rate_var: float) -> float:
+        """The main filter's yaw was just set to the course through the water, ``yaw`` rad
+        (variance ``p22`` rad^2 from the course's own noise; ``wn, we``: that water velocity,
+        m/s): the lateral velocity is then 0 = h.dx - V e + v, so e = (h.dx + v) / V.
+        ``rate_var``: the main filter's variance of its gyro bias about down, (rad/s)^2,
+        d's prior the first time.  Returns the yaw variance to give the main filter (rad^2;
+        ``p22`` unless the current is learnt)."""
+        if self.n != _N:
+            return p22
+        v = self._v
+        x, P = self.x, self.P
+        if not v[_E_SET]:
+            x[D] = 0.0
+            P[D, :] = 0.0
+            P[:, D] = 0.0
+            P[D, D] = rate_var
+        x[E] = 0.0
+        v[_VLP] = math.cos(yaw) * wn + math.sin(yaw) * we
+        v[_T_LP] = t_s
+        v_ = self._boat_regressors(a_lat, yaw_turned, yaw, wn, we)
+        h = self._h
+        for i in range(_N):
+            if i == E:
+                continue
+            a = 0.0
+            for j in range(_N):
+                if j != E:
+                    a += float(P[i, j]) * h[j]
+            P[i, E] = a / v_
+            P[E, i] = a / v_
+        pee = p22 + self._quad(h, (K, S, CN, CE)) / (v_ * v_)
+        P[E, E] = pee
+        v[_E_SET] = 1.0
+        v[_SET_NOW] = 1.0
+        v[_YAW_SET] = yaw
+        v[_YAW_END] = yaw
+        v[_T] = t_s
+        return pee
