@@ -609,6 +609,14 @@ class Estimator:
         P[3, 3] = P[4, 4] = P[5, 5] = c.init.vel_sd**2
         self._set_pos_var(c.init.pos_sd)
         P[9, 9] = P[10, 10] = P[11, 11] = c.imu.gyro_bias_sd**2
+        if yaw_known:
+            # a boat's learnt heading error starts here (aiding/course_learner.py)
+            lrn = self.gnss.course.learn
+            if src == "config":
+                lrn.yaw_known(float(P[2, 2]), yaw, fix.t_us * 1e-6, float(P[11, 11]))
+            else:
+                P[2, 2] = lrn.yaw_set(float(P[2, 2]), 0.0, 0.0, yaw, fix.vel_n, fix.vel_e,
+                                      fix.t_us * 1e-6, float(P[11, 11]))
         self.imu_noise.close_window(self._q, self._level_static)
         self._stage = _NAV
         self.counters["nav_start"] += 1

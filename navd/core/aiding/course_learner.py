@@ -304,6 +304,39 @@ class CourseLearner:
         if P_main[2, 2] < pee:
             P_main[2, 2] = pee
 
+    def _first_rate(self, rate_var: float) -> None:
+        if not self._v[_E_SET]:
+            x, P = self.x, self.P
+            x[D] = 0.0
+            P[D, :] = 0.0
+            P[:, D] = 0.0
+            P[D, D] = rate_var
+
+    def yaw_known(self, p22: float, yaw: float, t_s: float, rate_var: float) -> None:
+        """The main filter's yaw was set or widened by something other than the course
+        (config, its own observability, a recovery): e starts from its variance ``p22``
+        (rad^2), unrelated to the learnt terms; ``rate_var`` as in :meth:`yaw_set`."""
+        if self.n != _N:
+            return
+        self._first_rate(rate_var)
+        x, P = self.x, self.P
+        x[E] = 0.0
+        P[E, :] = 0.0
+        P[:, E] = 0.0
+        P[E, E] = p22
+        v = self._v
+        v[_E_SET] = 1.0
+        v[_SET_NOW] = 1.0
+        v[_YAW_SET] = yaw
+        v[_YAW_END] = yaw
+        v[_T] = t_s
+
+    def widen(self, var: float) -> None:
+        """The main filter added ``var`` rad^2 to its yaw variance (a divergence reset): so
+        does e."""
+        if self.n == _N and self._v[_E_SET]:
+            self.P[E, E] += var
+
     def yaw_set(self, p22: float, a_lat: float, yaw_turned: float, yaw: float,
                 wn: float, we: float, t_s: float, rate_var: float) -> float:
         """The main filter's yaw was just set to the course through the water, ``yaw`` rad
@@ -315,13 +348,9 @@ class CourseLearner:
         if self.n != _N:
             return p22
         v = self._v
-        x, P = self.x, self.P
-        if not v[_E_SET]:
-            x[D] = 0.0
-            P[D, :] = 0.0
-            P[:, D] = 0.0
-            P[D, D] = rate_var
-        x[E] = 0.0
+        P = self.P
+        self._first_rate(rate_var)
+        self.x[E] = 0.0
         v[_VLP] = math.cos(yaw) * wn + math.sin(yaw) * we
         v[_T_LP] = t_s
         v_ = self._boat_regressors(a_lat, yaw_turned, yaw, wn, we)

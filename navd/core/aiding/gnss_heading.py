@@ -365,6 +365,9 @@ class CourseHeading:
                 and est.P[2, 2] < self.cfg.init.aligned_sd**2):
             # the flag waits for consistency over time (heading_alignment.py)
             self.align.yaw_given(est, from_course=False)
+            m = est.mat_nb
+            self.learn.yaw_known(float(est.P[2, 2]), math.atan2(m[1, 0], m[0, 0]),
+                                 est.t_us * 1e-6, rate_var_down(est))
 
     def align_yaw(self, est: Estimator, vn: float, ve: float, s_sd: float,
                   extra_sd: float = 0.0) -> None:

@@ -16,7 +16,9 @@ ground and boat profiles (course ~ heading)
     course - learned sideslip); the check is *consistent* when |d| < 90 deg and
     d^2 <= 9 (P_yaw + sigma_course^2 + sigma_sideslip^2).  ``_CONFIRM_N`` consistent checks
     in a row spanning ``_CONFIRM_S`` set the flag (counted ``heading_aligned_from_course``
-    or ``heading_aligned_by_observability`` by where the yaw came from).
+    or ``heading_aligned_by_observability`` by where the yaw came from); on a boat the yaw
+    sigma must also be below ``[init] aligned_sd_deg`` (the course carries the crab of an
+    unknown current until turns have told it).
 other profiles (no course; without a yaw bank)
     the yaw sigma must stay below ``[init] aligned_sd_deg`` for ``_CONFIRM_N`` epochs over
     ``_CONFIRM_S`` while the GNSS updates move the yaw by less than 3 aligned_sd in total.
@@ -88,6 +90,10 @@ class HeadingAlignment:
     def __init__(self, cfg: EstimatorConfig) -> None:
         self.cfg = cfg
         self.course_checks = cfg.filter.profile in ("ground", "boat")
+        # a boat's course agrees with its yaw whatever the current: the crab is in both
+        # (the yaw was set from the course), so its flag also waits for the yaw sigma
+        # (the current learnt in turns, aiding/course_learner.py)
+        self._sigma_too = cfg.filter.profile == "boat"
         # traditional mode does not take course as heading: there a failed check only drops
         # the flag, the yaw is left to the filter
         self.may_realign = cfg.filter.mode == "completed"
@@ -227,7 +233,8 @@ class HeadingAlignment:
             s[_OK_T0] = t
         s[_OK_N] += 1.0
         if (not est.heading_aligned and s[_OK_N] >= _CONFIRM_N
-                and t - s[_OK_T0] >= _CONFIRM_S):
+                and t - s[_OK_T0] >= _CONFIRM_S
+                and (not self._sigma_too or est.P[2, 2] < self.cfg.init.aligned_sd ** 2)):
             self._flag(est)
 
     def _watch(self, d: float, var_c: float, var_y: float) -> bool:
