@@ -1,10 +1,8 @@
-"""What makes the GNSS course differ from the heading, learnt from the course innovations.
+"""What makes the GNSS course differ from the heading, learnt beside the main filter.
 
-A small Kalman filter beside the main one (as the rotor-drag coefficient is), fed the
-course innovation ``zc = wrap(psi_hat - chi')`` of every epoch whose course is used
-(:class:`navd.core.aiding.gnss_heading.CourseHeading`); ``chi'`` is the course of the
-lever-arm-free GNSS velocity minus the learnt current, turned back by the learnt sideslip.
-Estimates (``x``; the learner's errors are taken out after every step):
+A small Kalman filter beside the main one (as the rotor-drag coefficient is), fed once per
+GNSS epoch whose course is used (:class:`navd.core.aiding.gnss_heading.CourseHeading`).
+Estimates (``x``; k, s and c are corrections, their errors taken out after every step):
 
 ====  =====================================================================================
 k     sideslip per lateral acceleration, rad per m/s^2 (course = heading + k a_lat: a car
@@ -12,28 +10,30 @@ k     sideslip per lateral acceleration, rad per m/s^2 (course = heading + k a_l
 s     the z gyro's scale error (dimensionless; taken out of every z increment by
       ``kalman.imu_step``, ``sf[SF_SCALE_Z]``)
 c_N   water current, NED m/s (``boat`` profile): the hull moves along its heading through
-c_E   the water, so heading = course of (v_gnss - c) - k a_lat
-e     the main filter's heading error psi_hat - psi, rad (``boat`` profile)
+c_E   the water, so heading = course of (v_gnss - c)
+e     the main filter's heading error psi_hat - psi, rad (``boat``)
+d     its rate, rad/s: the main filter's gyro-bias error about down (``boat``)
 ====  =====================================================================================
 
-Linear model, with ``w`` the water-relative horizontal velocity and ``A`` the yaw the z gyro
-turned lately (the allowance's forgetting sum, ``sf[SF_YAW_Z]``)::
+Cars (every profile but ``boat``) learn k and s from the course innovation
+zc = wrap(psi_hat - chi') (chi' the slip-corrected course), zc = -a_lat dk + A ds + rest,
+A the yaw the z gyro turned lately (the allowance's forgetting sum, ``sf[SF_YAW_Z]``), the
+rest (heading error, noise) taken as white: it does not persist against k and s, which
+change sign with the turn (:meth:`CourseLearner.step`).
 
-    zc = e - a_lat dk + A ds + [w_E, -w_N] / |w|^2 dc + v
-
-(chi(w + dc) = chi(w) + [-w_E, w_N] dc / |w|^2.)  Cars (profiles other than ``boat``) learn
-k and s only and treat the heading error as noise: it does not persist against k and s,
-which change sign with the turn.  A current does not: on a straight leg it is one unknown
-with the heading error (a 0.6 m/s current across a boat at 3 m/s is an 11 deg crab), so a
-learner that took ``e`` for white noise would learn a current no data holds and the main
+A current does persist: on a straight leg the current across the track and the heading
+error are one unknown (a 0.6 m/s current across a boat at 2.5 m/s is a 14 deg crab), so a
+learner that took e for white noise would learn a current no data hold, and the main
 filter, told the course is good, would claim the crab as heading.  So the boat's learner
-carries ``e`` as a state: it drifts with the main filter's own yaw variance growth between
-epochs, moves with every correction the main filter applies (a known shift), and the
+carries e and d as states and measures the water velocity across the main filter's heading
+(:meth:`CourseLearner.step_lateral`).  e moves with every correction the main filter makes
+(a known shift), drifts at d, and grows with the scale error times the yaw turned; the
 current separates from it only as the heading changes (a turn shows the crab changing).
-Its variance P_ee is then what course and gyro together say about the heading; the main
-filter's yaw variance is never left below it (:meth:`CourseLearner.end_epoch`), because
-the main filter takes the remaining crab uncertainty as white noise and would otherwise
-average it away on a straight leg.
+P_ee is then what course and gyro together say about the heading, and the main filter's yaw
+variance is never left below it (:meth:`CourseLearner.end_epoch`): the main filter takes the
+rest of the crab's uncertainty as white noise and would average it away on a straight leg.
+docs/design.md §4 ("A boat's water current") derives the row and says what each guard is
+for.
 """
 
 from __future__ import annotations
@@ -74,10 +74,15 @@ _CURRENT_Q = 0.1 * 0.1 / 600.0
 # variance after the last epoch (rad^2), the time of the last epoch (s), whether e is
 # defined (the yaw has been set), whether it was set during this epoch and the yaw it was
 # set to (rad)
-_ALAT, _YAW_END, _T, _E_SET, _SET_NOW, _YAW_SET, _VLP, _T_LP = range(8)
+_ALAT, _YAW_END, _T, _E_SET, _SET_NOW, _YAW_SET, _VLP, _T_LP, _RQ, _NIS = range(10)
 # the speed in the boat's row is low-passed (s): its epoch-to-epoch noise (INS, 10 % in the
 # first seconds) reads as speed changes, which separate the crab's current from the heading
 _V_TAU = 3.0
+# the boat's row noise is scaled by the row's own normalised innovations (their mean square
+# should be 1), at this gain per epoch: a receiver that understates its velocity noise 3x
+# made the current look known from the first turn and left it wrong (beyond 3 sigma in
+# 17-45 % of instants), since the current, unlike the main filter's states, hardly walks
+_RQ_GAIN = 0.05
 
 
 class CourseLearner:
@@ -99,7 +104,7 @@ class CourseLearner:
         self.P = np.zeros((_N, _N))
         self._h = np.zeros(_N)
         self._ph = np.zeros(_N)
-        self._v = np.zeros(8)
+        self._v = np.zeros(10)
         self.reset()
 
     def reset(self) -> None:
@@ -115,6 +120,7 @@ class CourseLearner:
             self.P[CN, CN] = self._c_var0
             self.P[CE, CE] = self._c_var0
         self._v[:] = 0.0
+        self._v[_RQ] = 1.0
 
     @property
     def current(self) -> bool:
@@ -227,7 +233,12 @@ class CourseLearner:
         var_along = (un * un * float(P[CN, CN]) + 2.0 * un * ue * float(P[CN, CE])
                      + ue * ue * float(P[CE, CE]))
         r += var_along * float(P[E, E])
-        return self._update(y + speed * math.sin(e - k * a_lat), r, gate, False)
+        v[_NIS] = -1.0
+        ok = self._update(y + speed * math.sin(e - k * a_lat), r * float(v[_RQ]), gate, False)
+        if v[_NIS] >= 0.0:
+            # NIS of this row (gated ones excluded): its mean is 1 when r is right
+            v[_RQ] = max(1.0, float(v[_RQ]) * (1.0 + _RQ_GAIN * (float(v[_NIS]) - 1.0)))
+        return ok
 
     def _update(self, y: float, r: float, gate: float, rest_of_sc: bool) -> bool:
         """The Kalman step with the row in ``_h``; ``rest_of_sc``: ``r`` is the whole
@@ -249,6 +260,7 @@ class CourseLearner:
         s = hph + r
         if y * y > gate * s:
             return False  # an outlier teaches nothing
+        self._v[_NIS] = y * y / s
         x = self.x
         for i in range(n):
             g = ph[i] / s
