@@ -128,3 +128,20 @@ def test_a_receiver_that_understates_its_velocity_noise_does_not_fool_the_curren
     from misweighted turns hardly walks back)."""
     ex = [np.abs(err) > 3.0 * sd for err, sd, _, _ in (_boat(s, "boat", 3.0) for s in (1, 2, 3))]
     assert float(np.mean(np.concatenate(ex))) <= 0.05
+
+
+@pytest.mark.parametrize(("case", "seed", "said"), [
+    ("boat", 1, 1), ("boat", 2, 1), ("car_foreign", 1, 0), ("car_foreign", 2, 0),
+    ("sideslip_4", 1, 0), ("lever_1.6m", 1, 0), ("gyro_sf_3pct", 2, 0)])
+def test_a_ground_vehicle_whose_course_carries_a_current_is_told(case: str, seed: int,
+                                                                said: int) -> None:
+    """GIVEN the ground profile (the default) on the boat, and on cars that slip, have an
+    unmeasured 1.6 m lever arm, a 3 % gyro scale error or all of a foreign car's faults,
+    THEN the watch counts course_not_heading once on the boat (its course turns as a
+    current makes it: a boat, or a plane, run as a car) and never on a car (110 car runs
+    of the robustness cases, none: docs/results.md)."""
+    rb = load_benchmark("robustness")
+    c = next(x for x in rb.CASES if x.name == case)
+    run = generate(load_scenario(c.scenario, dict(c.overrides)), seed=seed, progress=False)
+    r = rb.score_sim(run, "ground")
+    assert r.counters.get("course_not_heading", 0) == said

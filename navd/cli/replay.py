@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import copy
+import math
 import sys
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -16,6 +17,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from navd.config import ConfigError, apply_overrides, load_config
 from navd.config.daemon import RUN_ONLY_SECTIONS, DaemonConfig
+from navd.core.aiding.course_learner import CE, CN
 from navd.core.estimator import Estimator
 from navd.io.csv_replay import (
     ReadReport,
@@ -437,7 +439,15 @@ def _replay_log(a: argparse.Namespace) -> int:
 
 def _mount_hint(est: Estimator) -> None:
     """Say so when the velocity said the IMU is pitched on the (ground) vehicle
-    (core/aiding/mount_check.py): the one mounting a replay can find out for its user."""
+    (core/aiding/mount_check.py): the one mounting a replay can find out for its user; and
+    when the course of a "ground" vehicle carried a current (core/aiding/course_learner.py:
+    a boat, or a plane, run as a car)."""
+    w = est.gnss.course.watch
+    if est.counters.get("course_not_heading") and w is not None:
+        print(f"navd replay: the course is not the heading here: it turns with the heading "
+              f"as a current of ~{math.hypot(w.x[CN], w.x[CE]):.1f} m/s would make it (a boat "
+              "in a current? --set filter.profile=boat; a plane in wind: fixed_wing); as a "
+              "ground vehicle the heading and its sigma follow the course", file=sys.stderr)
     pitch = est.status().get("imu_pitch_on_vehicle_deg")
     if est.counters.get("imu_pitch_mount_suspect") and isinstance(pitch, list):
         print(f"navd replay: driving straight, the velocity rose {pitch[0]:.2f} +- "

@@ -611,11 +611,11 @@ class Estimator:
         P[9, 9] = P[10, 10] = P[11, 11] = c.imu.gyro_bias_sd**2
         if yaw_known:
             # a boat's learnt heading error starts here (aiding/course_learner.py)
-            lrn = self.gnss.course.learn
+            crs = self.gnss.course
             if src == "config":
-                lrn.yaw_known(float(P[2, 2]), yaw, fix.t_us * 1e-6, float(P[11, 11]))
+                crs.yaw_known(float(P[2, 2]), yaw, fix.t_us * 1e-6, float(P[11, 11]))
             else:
-                P[2, 2] = lrn.yaw_set(float(P[2, 2]), 0.0, 0.0, yaw, fix.vel_n, fix.vel_e,
+                P[2, 2] = crs.yaw_set(float(P[2, 2]), 0.0, 0.0, yaw, fix.vel_n, fix.vel_e,
                                       fix.t_us * 1e-6, float(P[11, 11]))
         self.imu_noise.close_window(self._q, self._level_static)
         self._stage = _NAV

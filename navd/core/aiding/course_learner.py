@@ -74,7 +74,8 @@ _CURRENT_Q = 0.1 * 0.1 / 600.0
 # variance after the last epoch (rad^2), the time of the last epoch (s), whether e is
 # defined (the yaw has been set), whether it was set during this epoch and the yaw it was
 # set to (rad)
-_ALAT, _YAW_END, _T, _E_SET, _SET_NOW, _YAW_SET, _VLP, _T_LP, _RQ, _NIS = range(10)
+(_ALAT, _YAW_END, _T, _E_SET, _SET_NOW, _YAW_SET, _VLP, _T_LP, _RQ, _NIS, _SUSP_N,
+ _SUSPECT) = range(12)
 # the speed in the boat's row is low-passed (s): its epoch-to-epoch noise (INS, 10 % in the
 # first seconds) reads as speed changes, which separate the crab's current from the heading
 _V_TAU = 3.0
@@ -83,6 +84,14 @@ _V_TAU = 3.0
 # made the current look known from the first turn and left it wrong (beyond 3 sigma in
 # 17-45 % of instants), since the current, unlike the main filter's states, hardly walks
 _RQ_GAIN = 0.05
+# a watch calls the course "not the heading" once its current is beyond this Mahalanobis
+# distance from zero (chi-square, 2 dof, p = 1e-4) and would turn the course by more than
+# this (rad, at the speed through the water) and at least this fast, for this many epochs
+# in a row (a boat: crab; a plane run as a ground vehicle: wind)
+_SUSPECT_M2 = 18.42
+_SUSPECT_CRAB = 0.05
+_SUSPECT_MPS = 0.25
+_SUSPECT_N = 50
 
 
 class CourseLearner:
@@ -90,10 +99,13 @@ class CourseLearner:
     heading error it hides (``boat``); see the module doc.  Arrays only: the epoch loop
     rebinds no Python objects (the allocation test counts them)."""
 
-    def __init__(self, cfg: EstimatorConfig) -> None:
+    def __init__(self, cfg: EstimatorConfig, watch: bool = False) -> None:
         self._sf_sd0 = cfg.imu.gyro_scale_sd
         self._sf_var0 = self._sf_sd0 * self._sf_sd0
-        sd_c = cfg.heading.current_sd if cfg.filter.profile == "boat" else 0.0
+        # watch: the boat's learner run beside a ground vehicle's course update, applied to
+        # nothing, to tell a course that is not the heading (:meth:`current_suspect`)
+        self.watch = watch
+        sd_c = (cfg.heading.current_sd if cfg.filter.profile == "boat" or watch else 0.0)
         self._c_var0 = sd_c * sd_c
         # e's white noise (the gyro's) and d's walk (the gyro bias's), per second
         self._q_e = cfg.imu.gyro_arw * cfg.imu.gyro_arw
@@ -104,7 +116,7 @@ class CourseLearner:
         self.P = np.zeros((_N, _N))
         self._h = np.zeros(_N)
         self._ph = np.zeros(_N)
-        self._v = np.zeros(10)
+        self._v = np.zeros(12)
         self.reset()
 
     def reset(self) -> None:
@@ -112,10 +124,11 @@ class CourseLearner:
         self.P[:, :] = 0.0
         self.P[K, K] = SLIP_SD0 * SLIP_SD0
         self.P[S, S] = self._sf_var0
-        if self.n == _N:
+        if self.n == _N and not self.watch:
             # a hull does not slip as a tyre does, and in a turn the slip and the current
             # explain the same lateral velocity: the boat learns no slip gain (its leeway
-            # is in [heading] sideslip_sd_deg)
+            # is in [heading] sideslip_sd_deg).  A watch on a car keeps it: a car's slip
+            # read as a current would be a false alarm
             self.P[K, K] = 0.0
             self.P[CN, CN] = self._c_var0
             self.P[CE, CE] = self._c_var0
@@ -133,6 +146,10 @@ class CourseLearner:
 
     def set_a_lat(self, a_lat: float) -> None:
         self._v[_ALAT] = a_lat
+
+    def ground(self, wn: float, we: float) -> tuple[float, float]:
+        """Velocity through the water plus the learnt current: over the ground, NED m/s."""
+        return wn + float(self.x[CN]), we + float(self.x[CE])
 
     def water(self, vn: float, ve: float) -> tuple[float, float]:
         """GNSS (ground) velocity minus the learnt current, NED m/s."""
@@ -238,7 +255,29 @@ class CourseLearner:
         if v[_NIS] >= 0.0:
             # NIS of this row (gated ones excluded): its mean is 1 when r is right
             v[_RQ] = max(1.0, float(v[_RQ]) * (1.0 + _RQ_GAIN * (float(v[_NIS]) - 1.0)))
+        if self.watch:
+            self._watch_current()
         return ok
+
+    def _watch_current(self) -> None:
+        v = self._v
+        x, P = self.x, self.P
+        cn, ce = float(x[CN]), float(x[CE])
+        a, b, d = float(P[CN, CN]), float(P[CN, CE]), float(P[CE, CE])
+        det = a * d - b * b
+        m2 = (d * cn * cn - 2.0 * b * cn * ce + a * ce * ce) / det if det > 0.0 else 0.0
+        lim = max(_SUSPECT_MPS, _SUSPECT_CRAB * float(v[_VLP]))
+        if m2 > _SUSPECT_M2 and cn * cn + ce * ce > lim * lim:
+            v[_SUSP_N] += 1.0
+            if v[_SUSP_N] >= _SUSPECT_N:
+                v[_SUSPECT] = 1.0
+        else:
+            v[_SUSP_N] = 0.0
+
+    @property
+    def current_suspect(self) -> bool:
+        """(watch) Whether the course has been seen to carry a current (not the heading)."""
+        return bool(self._v[_SUSPECT])
 
     def _update(self, y: float, r: float, gate: float, rest_of_sc: bool) -> bool:
         """The Kalman step with the row in ``_h``; ``rest_of_sc``: ``r`` is the whole
@@ -270,7 +309,7 @@ class CourseLearner:
                 P[j, i] = P[i, j]
         lim = SF_MAX_SD * self._sf_sd0
         x[S] = min(max(float(x[S]), -lim), lim)
-        if n != _N:
+        if n != _N or self.watch:
             P[K, K] += SLIP_Q
         if self._sf_var0 > 0.0:
             P[S, S] += SF_Q
@@ -313,7 +352,7 @@ class CourseLearner:
         self.x[D] -= d_rate
         v[_YAW_END] = yaw
         pee = float(self.P[E, E])
-        if P_main[2, 2] < pee:
+        if P_main[2, 2] < pee and not self.watch:
             P_main[2, 2] = pee
 
     def _first_rate(self, rate_var: float) -> None:
@@ -351,9 +390,11 @@ class CourseLearner:
 
     def yaw_set(self, p22: float, a_lat: float, yaw_turned: float, yaw: float,
                 wn: float, we: float, t_s: float, rate_var: float) -> float:
-        """The main filter's yaw was just set to the course through the water, ``yaw`` rad
-        (variance ``p22`` rad^2 from the course's own noise; ``wn, we``: that water velocity,
-        m/s): the lateral velocity is then 0 = h.dx - V e + v, so e = (h.dx + v) / V.
+        """The main filter's yaw was just set to a course, ``yaw`` rad (variance ``p22``
+        rad^2 from the course's own noise; ``wn, we``: the velocity through the water by this
+        learner's current, m/s): the lateral velocity y0 = n(yaw) . w (0 when the yaw is the
+        course through the water; a watch's current differs) is then y0 = h.dx - V e + v,
+        so e = (h.dx + v - y0) / V.
         ``rate_var``: the main filter's variance of its gyro bias about down, (rad/s)^2,
         d's prior the first time.  Returns the yaw variance to give the main filter (rad^2;
         ``p22`` unless the current is learnt)."""
@@ -366,6 +407,7 @@ class CourseLearner:
         v[_VLP] = math.cos(yaw) * wn + math.sin(yaw) * we
         v[_T_LP] = t_s
         v_ = self._boat_regressors(a_lat, yaw_turned, yaw, wn, we)
+        self.x[E] = (math.sin(yaw) * wn - math.cos(yaw) * we) / v_
         h = self._h
         for i in range(_N):
             if i == E:

@@ -21,6 +21,7 @@ from navd.config import EstimatorConfig
 from navd.core import state as st
 from navd.core.aiding.adaptive_noise import AdaptiveNoise
 from navd.core.aiding.base import INNOV_POS
+from navd.core.aiding.course_learner import CE, CN
 from navd.core.aiding.gnss_heading import CourseHeading
 from navd.core.aiding.gnss_recovery import LockoutRecovery
 from navd.core.aiding.mount_check import PitchMountCheck
@@ -96,6 +97,14 @@ class GnssAiding:
         e = self.mount_check.estimate
         return None if e is None else [round(math.degrees(x), 3) for x in e]
 
+    def _current(self) -> list[float] | None:
+        lrn = self.course.learn
+        if not lrn.current:
+            return None
+        x, P = lrn.x, lrn.P
+        return [round(float(x[i]), 3) for i in (CN, CE)] + [
+            round(math.sqrt(float(P[i, i])), 3) for i in (CN, CE)]
+
     def status(self, est: Estimator) -> dict[str, object]:
         return {
             "course_update": self.course.status,
@@ -105,10 +114,10 @@ class GnssAiding:
             # ... and the z gyro's scale error learnt beside it (%, and its 1-sigma), taken
             # out of the z increments
             "gyro_z_scale_pct": [round(100.0 * x, 3) for x in self.course.gyro_z_scale],
-            # a boat's water current north, east and their 1-sigmas (m/s; boat profile):
-            # heading = course through the water
-            "water_current_mps": ([round(x, 3) for x in self.course.water_current]
-                                  if self.course.learn.current else None),
+            # a boat's water current north, east and their 1-sigmas (m/s; boat profile:
+            # heading = course through the water).  A ground vehicle's course that turns as
+            # a current would make it is counted once, course_not_heading
+            "water_current_mps": self._current(),
             # the velocity's mean pitch above the body x axis and its 1-sigma (deg; ground
             # profile, straight driving): an IMU pitched on the vehicle shows here (the
             # counter imu_pitch_mount_suspect says when it is beyond 3 sigma)
@@ -179,7 +188,7 @@ class GnssAiding:
 
         m_nb = est.mat_nb
         yaw0 = math.atan2(m_nb[1, 0], m_nb[0, 0])
-        self.course.learn.begin_epoch(g.t_us * 1e-6, yaw0)
+        self.course.begin_epoch(g.t_us * 1e-6, yaw0)
         bg = est.bias_g
         rate0 = m_nb[2, 0] * bg[0] + m_nb[2, 1] * bg[1] + m_nb[2, 2] * bg[2]
         if c.gnss.use_position:
@@ -202,8 +211,8 @@ class GnssAiding:
         d_yaw = (yaw1 - yaw0 + math.pi) % (2.0 * math.pi) - math.pi
         self.course.align.note_yaw_moved(est, d_yaw)
         # a boat's learnt heading error moves with the yaw; the yaw sigma stays above it
-        self.course.learn.end_epoch(
-            est.P, d_yaw, yaw1,
+        self.course.end_epoch(
+            est, est.P, d_yaw, yaw1,
             m_nb[2, 0] * bg[0] + m_nb[2, 1] * bg[1] + m_nb[2, 2] * bg[2] - rate0)
         self.recovery.after_epoch(est, g.t_us, h_sd, v_sd, s_sd, math.isfinite(g.vel_d))
         self.adaptive.after_epoch(est, math.isfinite(g.vel_d), s_sd)

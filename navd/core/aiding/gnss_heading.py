@@ -39,7 +39,7 @@ from navd.core.aiding.base import (
     REJECTED,
     SINGULAR,
 )
-from navd.core.aiding.course_learner import CE, CN, CourseLearner, K, S
+from navd.core.aiding.course_learner import CourseLearner, K, S
 from navd.core.aiding.heading_alignment import HeadingAlignment
 from navd.core.chi2 import chi2_quantile
 from navd.core.kalman import SF_SCALE_Z, SF_YAW_Z
@@ -164,8 +164,14 @@ class CourseHeading:
         # whose tyres slip in turns), the z gyro's scale error and a boat's water current,
         # learnt from the course innovations
         self.learn = CourseLearner(cfg)
+        # a ground vehicle's course watched for a current it does not model (a boat run as
+        # a car, a plane's wind): the boat's learner, applied to nothing
+        self.watch = (CourseLearner(cfg, watch=True)
+                      if self.enabled and c.filter.profile == "ground"
+                      and c.heading.current_sd > 0.0 else None)
         # when the heading may be flagged aligned (not on one sample)
         self.align = HeadingAlignment(cfg)
+        self._told = [False]  # course_not_heading counted (once per run)
 
     @property
     def slip_gain(self) -> float:
@@ -182,17 +188,48 @@ class CourseHeading:
         """The z gyro's learnt scale error and its 1-sigma (dimensionless)."""
         return float(self.learn.x[S]), math.sqrt(float(self.learn.P[S, S]))
 
-    @property
-    def water_current(self) -> tuple[float, float, float, float]:
-        """The learnt current north, east and their 1-sigmas, m/s (boat profile)."""
-        x, P = self.learn.x, self.learn.P
-        return (float(x[CN]), float(x[CE]), math.sqrt(float(P[CN, CN])),
-                math.sqrt(float(P[CE, CE])))
-
     def reset(self) -> None:
         self.rejects = 0
         self.align.reset()
         self.learn.reset()
+        if self.watch is not None:
+            self.watch.reset()
+
+    # the yaw's life cycle, told to the learner (and the watch): course_learner.py
+    def yaw_known(self, p22: float, yaw: float, t_s: float, rate_var: float) -> None:
+        self.learn.yaw_known(p22, yaw, t_s, rate_var)
+        if self.watch is not None:
+            self.watch.yaw_known(p22, yaw, t_s, rate_var)
+
+    def yaw_set(self, p22: float, a_lat: float, turned: float, yaw: float, wn: float,
+                we: float, t_s: float, rate_var: float) -> float:
+        """The yaw was set to the course of (wn, we) (through the water by the learnt
+        current); returns the yaw variance for the main filter."""
+        if self.watch is not None:
+            w = self.watch
+            w_n, w_e = w.water(*self.learn.ground(wn, we))
+            w.yaw_set(p22, a_lat, turned, yaw, w_n, w_e, t_s, rate_var)
+        return self.learn.yaw_set(p22, a_lat, turned, yaw, wn, we, t_s, rate_var)
+
+    def widen(self, var: float) -> None:
+        self.learn.widen(var)
+        if self.watch is not None:
+            self.watch.widen(var)
+
+    def begin_epoch(self, t_s: float, yaw: float) -> None:
+        self.learn.begin_epoch(t_s, yaw)
+        if self.watch is not None:
+            self.watch.begin_epoch(t_s, yaw)
+
+    def end_epoch(self, est: Estimator, P: Arr, d_yaw: float, yaw: float,
+                  d_rate: float) -> None:
+        self.learn.end_epoch(P, d_yaw, yaw, d_rate)
+        w = self.watch
+        if w is not None:
+            w.end_epoch(P, d_yaw, yaw, d_rate)
+            if w.current_suspect and not self._told[0]:
+                self._told[0] = True
+                est.counters["course_not_heading"] += 1
 
     def usable(self, est: Estimator, g: GnssSample) -> bool:
         """Whether heading ~ course now (docs/design.md §4); sets :attr:`status`."""
@@ -324,6 +361,16 @@ class CourseHeading:
             learnt = lrn.step(zc, sc, self._gate1, a_lat, turned)
         if learnt:
             est.gyro_sf[SF_SCALE_Z] = lrn.x[S]
+        w = self.watch
+        if w is not None:
+            # the same row by the watch's current (step_lateral), the course taken as the
+            # slip-corrected heading's noise
+            gn, ge = lrn.ground(wn, we)
+            w_n, w_e = w.water(gn, ge)
+            i_n, i_e = w.water(float(est.vel_n[0]), float(est.vel_n[1]))
+            w.step_lateral(-math.sin(yaw) * w_n + math.cos(yaw) * w_e,
+                           (w_n * w_n + w_e * w_e) * (float(est.meas_R[3, 3]) - var_learn),
+                           self._gate1, a_lat, turned, yaw, i_n, i_e, g.t_us * 1e-6)
         rec = est.innov[INNOV_COURSE]
         rec[0] = zc
         rec[INNOV_NIS] = zc * zc / sc
@@ -366,8 +413,8 @@ class CourseHeading:
             # the flag waits for consistency over time (heading_alignment.py)
             self.align.yaw_given(est, from_course=False)
             m = est.mat_nb
-            self.learn.yaw_known(float(est.P[2, 2]), math.atan2(m[1, 0], m[0, 0]),
-                                 est.t_us * 1e-6, rate_var_down(est))
+            self.yaw_known(float(est.P[2, 2]), math.atan2(m[1, 0], m[0, 0]),
+                           est.t_us * 1e-6, rate_var_down(est))
 
     def align_yaw(self, est: Estimator, vn: float, ve: float, s_sd: float,
                   extra_sd: float = 0.0) -> None:
@@ -388,7 +435,7 @@ class CourseHeading:
         P[2, :] = 0.0
         P[:, 2] = 0.0
         sd = s_sd / math.hypot(vn, ve)
-        P[2, 2] = self.learn.yaw_set(
+        P[2, 2] = self.yaw_set(
             sd * sd + self.sd_beta**2 + (1.0 * math.pi / 180.0) ** 2 + extra_sd**2,
             self.learn.a_lat, float(est.gyro_sf[SF_YAW_Z]), chi, vn, ve, est.t_us * 1e-6,
             rate_var_down(est))

@@ -221,8 +221,7 @@ def _relevel_at_rest(est: Estimator) -> None:
         P[2, :] = 0.0
         P[:, 2] = 0.0
         P[2, 2] = (math.pi / 2.0) ** 2
-        est.gnss.course.learn.yaw_known(float(P[2, 2]), yaw, est.t_us * 1e-6,
-                                        float(P[11, 11]))
+        est.gnss.course.yaw_known(float(P[2, 2]), yaw, est.t_us * 1e-6, float(P[11, 11]))
     est.counters["reset_level_at_rest"] += 1
 
 
@@ -235,7 +234,7 @@ def _widen_attitude_and_biases(est: Estimator) -> None:
     P[0, 0] += tilt2
     P[1, 1] += tilt2
     P[2, 2] += c.init.heading_sd ** 2
-    est.gnss.course.learn.widen(c.init.heading_sd ** 2)
+    est.gnss.course.widen(c.init.heading_sd ** 2)
     for k in range(_BG, _BG + 3):
         P[k, k] += c.imu.gyro_bias_sd ** 2
     for k in range(_BG + 3, _BG + 6):
