@@ -172,6 +172,7 @@ class CourseHeading:
         # when the heading may be flagged aligned (not on one sample)
         self.align = HeadingAlignment(cfg)
         self._told = [False]  # course_not_heading counted (once per run)
+        self._wv = np.zeros(2)  # the epoch's velocity through the water, m/s (_learn_epoch)
 
     @property
     def slip_gain(self) -> float:
@@ -283,6 +284,65 @@ class CourseHeading:
         est.record_innovation(INNOV_VEL, 0, 3,
                               est.fuse_block(m, self._gate3, "vel", hold, hold_mask))
 
+    def _water_checks(self, est: Estimator, g: GnssSample, s_sd: float) -> bool:
+        """The epoch's course check, realignment and first-course alignment (by the velocity
+        through the water: over the ground but on a boat); whether the course is used."""
+        cfg = self.cfg
+        al = self.align
+        wn, we = self.learn.water(g.vel_n, g.vel_e)
+        al.check_course(est, g.t_us, wn, we, s_sd, self.learn, self.sd_beta)
+        if al.realign_requested:
+            # backwards for longer than reversing explains: the yaw is wrong by > 90 deg
+            self.align_yaw(est, wn, we, s_sd, extra_sd=cfg.init.heading_sd)
+        use_course = self.usable(est, g)
+        if (not use_course and not al.yaw_set
+                and cfg.init.heading_source == "gnss_course"
+                and course_may_align(cfg, est.yaw_bank is not None)
+                and math.hypot(wn, we) >= cfg.heading.align_speed):
+            # Without course updates the first fast course still beats a yaw of zero as a
+            # starting point (crab makes it coarse: keep the yaw variance wide).
+            self.align_yaw(est, wn, we, s_sd, extra_sd=cfg.init.heading_sd)
+        return use_course
+
+    def _course_var(self, est: Estimator, a_lat: float) -> float:
+        """What the learnt sideslip (and current) leave in the course, rad^2: the row's
+        heading and the INS velocity through the water (smooth, unlike the fix's)."""
+        lrn = self.learn
+        if not lrn.current:
+            return lrn.course_var(a_lat, 0.0, 0.0, 0.0)
+        m = est.mat_nb
+        ins_n, ins_e = lrn.water(float(est.vel_n[0]), float(est.vel_n[1]))
+        return lrn.course_var(a_lat, math.atan2(m[1, 0], m[0, 0]), ins_n, ins_e)
+
+    def _learn_epoch(self, est: Estimator, g: GnssSample, zc: float, sc: float,
+                     a_lat: float, r_white: float) -> None:
+        """The learner's step (and the watch's) from this epoch's course; ``r_white``: the
+        course's own white noise, rad^2; the water velocity before the slip is in _wv."""
+        lrn = self.learn
+        wn, we = float(self._wv[0]), float(self._wv[1])
+        m = est.mat_nb
+        yaw = math.atan2(m[1, 0], m[0, 0])
+        turned = float(est.gyro_sf[SF_YAW_Z])
+        if lrn.current:
+            # across the heading through the water, m/s (CourseLearner.step_lateral)
+            ins_n, ins_e = lrn.water(float(est.vel_n[0]), float(est.vel_n[1]))
+            learnt = lrn.step_lateral(-math.sin(yaw) * wn + math.cos(yaw) * we,
+                                      (wn * wn + we * we) * r_white, self._gate1, a_lat,
+                                      turned, yaw, ins_n, ins_e, g.t_us * 1e-6)
+        else:
+            learnt = lrn.step(zc, sc, self._gate1, a_lat, turned)
+        if learnt:
+            est.gyro_sf[SF_SCALE_Z] = lrn.x[S]
+        w = self.watch
+        if w is not None:
+            # the same row by the watch's current (step_lateral)
+            gn, ge = lrn.ground(wn, we)
+            w_n, w_e = w.water(gn, ge)
+            i_n, i_e = w.water(float(est.vel_n[0]), float(est.vel_n[1]))
+            w.step_lateral(-math.sin(yaw) * w_n + math.cos(yaw) * w_e,
+                           (w_n * w_n + w_e * w_e) * r_white, self._gate1, a_lat, turned,
+                           yaw, i_n, i_e, g.t_us * 1e-6)
+
     def fuse_with_velocity(self, est: Estimator, g: GnssSample, s_sd: float,
                            hold: int, hold_mask: int = 0) -> None:
         """The GNSS velocity update, with the course row joined when :meth:`usable`.
@@ -296,19 +356,7 @@ class CourseHeading:
         cfg = self.cfg
         al = self.align
         lrn = self.learn
-        wn, we = lrn.water(g.vel_n, g.vel_e)
-        al.check_course(est, g.t_us, wn, we, s_sd, lrn, self.sd_beta)
-        if al.realign_requested:
-            # backwards for longer than reversing explains: the yaw is wrong by > 90 deg
-            self.align_yaw(est, wn, we, s_sd, extra_sd=cfg.init.heading_sd)
-        use_course = self.usable(est, g)
-        if (not use_course and not al.yaw_set
-                and cfg.init.heading_source == "gnss_course"
-                and course_may_align(cfg, est.yaw_bank is not None)
-                and math.hypot(wn, we) >= cfg.heading.align_speed):
-            # Without course updates the first fast course still beats a yaw of zero as a
-            # starting point (crab makes it coarse: keep the yaw variance wide).
-            self.align_yaw(est, wn, we, s_sd, extra_sd=cfg.init.heading_sd)
+        use_course = self._water_checks(est, g, s_sd)
         m, swapped = self._fill_velocity(est, g, s_sd)
         if not use_course:
             if swapped:
@@ -327,19 +375,14 @@ class CourseHeading:
                 est.state_restore()
             self.align_yaw(est, vn_c, ve_c, s_sd)
             return
+        self._wv[0] = vn_c
+        self._wv[1] = ve_c
         # the course of the body x axis: the GNSS course minus the learned sideslip
         a_lat = lrn.a_lat
-        m_nb = est.mat_nb
-        yaw = math.atan2(m_nb[1, 0], m_nb[0, 0])
-        # the INS velocity through the water: the boat learner's row (smooth, unlike the
-        # fix's)
-        ins_n, ins_e = lrn.water(float(est.vel_n[0]), float(est.vel_n[1]))
-        wn, we = vn_c, ve_c
         d = float(lrn.x[K]) * a_lat
         cd, sd_ = math.cos(d), math.sin(d)
         vn_c, ve_c = cd * vn_c + sd_ * ve_c, -sd_ * vn_c + cd * ve_c
-        var_learn = lrn.course_var(a_lat, yaw, ins_n, ins_e)
-        sd_beta = math.sqrt(self.sd_beta * self.sd_beta + var_learn)
+        sd_beta = math.sqrt(self.sd_beta * self.sd_beta + self._course_var(est, a_lat))
         # course alone first: its own gate decides whether it joins the velocity update
         st.course_row(est.buf, 3, vn_c, ve_c, s_sd, sd_beta)
         if swapped:
@@ -350,27 +393,8 @@ class CourseHeading:
         sc -= 2.0 * (H[3, 0] * P[0, 2] + H[3, 1] * P[1, 2])
         sc += est.meas_R[3, 3]  # the course's own noise: speed, sideslip, lever arm
         course_ok = (not self._gating) or zc * zc / sc <= self._gate1
-        turned = float(est.gyro_sf[SF_YAW_Z])
-        if lrn.current:
-            # across the heading through the water, m/s (CourseLearner.step_lateral)
-            y = -math.sin(yaw) * wn + math.cos(yaw) * we
-            r = (wn * wn + we * we) * (float(est.meas_R[3, 3]) - var_learn)
-            learnt = lrn.step_lateral(y, r, self._gate1, a_lat, turned, yaw, ins_n, ins_e,
-                                      g.t_us * 1e-6)
-        else:
-            learnt = lrn.step(zc, sc, self._gate1, a_lat, turned)
-        if learnt:
-            est.gyro_sf[SF_SCALE_Z] = lrn.x[S]
-        w = self.watch
-        if w is not None:
-            # the same row by the watch's current (step_lateral), the course taken as the
-            # slip-corrected heading's noise
-            gn, ge = lrn.ground(wn, we)
-            w_n, w_e = w.water(gn, ge)
-            i_n, i_e = w.water(float(est.vel_n[0]), float(est.vel_n[1]))
-            w.step_lateral(-math.sin(yaw) * w_n + math.cos(yaw) * w_e,
-                           (w_n * w_n + w_e * w_e) * (float(est.meas_R[3, 3]) - var_learn),
-                           self._gate1, a_lat, turned, yaw, i_n, i_e, g.t_us * 1e-6)
+        self._learn_epoch(est, g, zc, sc, a_lat, float(est.meas_R[3, 3])
+                          - (sd_beta * sd_beta - self.sd_beta * self.sd_beta))
         rec = est.innov[INNOV_COURSE]
         rec[0] = zc
         rec[INNOV_NIS] = zc * zc / sc
