@@ -502,3 +502,45 @@ def test_adapters_refuse_what_the_estimator_would_refuse() -> None:
     for f in frames:
         dec.feed_datagram(f, 0)
     assert dec.counters["imu_absurd_gyro"] == 0
+
+
+def test_daemon_warns_once_when_the_autopilot_is_a_boat_and_navd_runs_a_car(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """GIVEN a daemon with the default (ground) profile whose MAVLink input decoded the
+    HEARTBEATs of a ground station (GCS, no autopilot) and of the flight controller that
+    sends the IMU, an ArduPilot SURFACE_BOAT,
+    WHEN the status loop checks them (twice),
+    THEN one warning names the boat profile and the setting; with the boat profile
+    configured, none; with only the ground station's heartbeat, none."""
+    from pymavlink.dialects.v20 import common as mav
+
+    from navd.config.daemon import load_daemon_config
+    from navd.daemon.daemon import Daemon
+    from navd.daemon.sources import MavlinkInput
+
+    def beats(*who: tuple[int, int, int, int]) -> MavlinkDecoder:
+        dec = MavlinkDecoder()
+        for sysid, compid, mav_type, autopilot in who:
+            enc = mav.MAVLink(None, sysid, compid)
+            dec.feed(enc.heartbeat_encode(mav_type, autopilot, 0, 0, 4).pack(enc), 0)
+        return dec
+
+    boat = (1, 1, mav.MAV_TYPE_SURFACE_BOAT, mav.MAV_AUTOPILOT_ARDUPILOTMEGA)
+    gcs = (255, 190, mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID)
+    for profile, who, warned in (("ground", (gcs, boat), 1), ("boat", (gcs, boat), 0),
+                                 ("ground", (gcs,), 0)):
+        cfg = load_daemon_config(None, ["zenoh.enabled=false", "daemon.warm_up=false",
+                                        f"filter.profile={profile}"])
+        d = Daemon(cfg, handle_signals=False)
+        inp = MavlinkInput(cfg)
+        inp.decoder = beats(*who)
+        d.sources.inputs[MavlinkInput.kind] = inp
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            d._check_vehicle()
+            d._check_vehicle()
+        said = [r.message for r in caplog.records if "fits [filter] profile" in r.message]
+        assert len(said) == warned, (profile, said)
+        if warned:
+            assert 'profile = "boat"' in said[0] and "SURFACE_BOAT" in said[0], said
+        d._close()

@@ -235,6 +235,7 @@ class Daemon:
         # host times of the last published solution and of the start of navigation: "navigating"
         # (HEARTBEAT ACTIVE) needs outputs actually going out, not just a navigating estimator
         self._output_at = -math.inf
+        self._vehicle_told = False  # _check_vehicle warned
         self._nav_since = -math.inf
         self._output_t_us = -1  # sensor time of the last published solution
         # sensor times at which a valid GNSS fix last reached the estimator (counter "gnss")
@@ -690,6 +691,7 @@ class Daemon:
                 if grew > 0 and _is_refusal(name):
                     self.rlog.warn(f"est_{name}", "estimator: %s +%d (total %d)", name, grew, n)
             seen = now_counts
+            self._check_vehicle()
             clock = dict(self.clock_guard.counters)
             for name, n in clock.items():
                 grew = n - seen_clock.get(name, 0)
@@ -799,6 +801,19 @@ class Daemon:
         if self.est.t_us != self._progress_t_us:
             self._progress_t_us = self.est.t_us
             self._progress_at = time.monotonic()
+
+    def _check_vehicle(self) -> None:
+        """Once: warn when the autopilot's HEARTBEAT names a vehicle whose profile is not
+        the one navd runs (a boat run as a car keeps a heading sigma its crab belies)."""
+        if self._vehicle_told:
+            return
+        profile, said = self.sources.vehicle()
+        ours = self.est.cfg.filter.profile
+        if profile and profile != ours:
+            self._vehicle_told = True
+            _log.warning("the vehicle's %s fits [filter] profile = \"%s\", but navd runs "
+                         "\"%s\": set it in the config (heading and its sigma depend on it)",
+                         said, profile, ours)
 
     def _note_progress(self) -> None:
         now = time.monotonic()

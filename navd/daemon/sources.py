@@ -34,6 +34,7 @@ from navd.core.plausible import Limits
 from navd.daemon.adapters import dronecan_bus_config, mavlink_input_config
 from navd.diag import RateLimitedLog
 from navd.io.common import Sample, SampleCallback
+from navd.io.logs.common import vehicle_from_heartbeats
 from navd.io.mavlink import MavlinkDecoder, MavlinkLink
 from navd.io.read_pacing import ReadPacer
 
@@ -372,6 +373,19 @@ class Sources:
             self.close()
             raise
         return opened
+
+    def vehicle(self) -> tuple[str, str]:
+        """(navd profile or "", what states it) from the MAVLink input's HEARTBEATs: the
+        type the flight controller that sends the IMU says it is (as a tlog's replay
+        reads it); ("", "") before one came or without a MAVLink input."""
+        inp = self.inputs.get(MavlinkInput.kind)
+        dec = inp.decoder if isinstance(inp, MavlinkInput) else None
+        if dec is None or not dec.heartbeats:
+            return "", ""
+        imu_sys = dec.watched_imu()[0]
+        return vehicle_from_heartbeats([(src[0], t, a) for src, (t, a) in
+                                        dec.heartbeats.items()],
+                                       imu_sys if imu_sys >= 0 else None)
 
     @property
     def mavlink(self) -> MavlinkLink | None:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from collections import Counter
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -77,6 +78,28 @@ def vehicle_from_mav_type(mav_type: int, where: str) -> tuple[str, str]:
     """(profile or "", what the log says) for a MAVLink MAV_TYPE value found at ``where``."""
     name = MAV_TYPE_NAMES.get(mav_type, str(mav_type))
     return MAV_TYPE_PROFILE.get(mav_type, ""), f"{where} MAV_TYPE {mav_type} ({name})"
+
+
+# HEARTBEAT types that are not the vehicle: generic, antenna tracker, ground station,
+# companion computer, and peripherals (gimbal .. ) that send their own heartbeat
+_NOT_A_VEHICLE = frozenset({0, 5, 6, 18, 26, 27, 30, 31, 32, 33, 34, 36, 37, 38, 39, 40, 41,
+                            42, 44, 48})
+_MAV_AUTOPILOT_INVALID = 8  # a ground station or peripheral, not a flight controller
+
+
+def vehicle_from_heartbeats(beats: Sequence[tuple[int, int, int]], imu_sys: int | None
+                            ) -> tuple[str, str]:
+    """(navd profile or "", what states it) from HEARTBEATs as (system id, MAV_TYPE,
+    MAV_AUTOPILOT): those of the flight controller, the system that sent the IMU messages
+    (``imu_sys``; any system if none of its heartbeats is there), the most common MAV_TYPE
+    among them."""
+    own = [b for b in beats
+           if b[1] not in _NOT_A_VEHICLE and b[2] != _MAV_AUTOPILOT_INVALID]
+    mine = [b for b in own if b[0] == imu_sys] or own
+    if not mine:
+        return "", ""
+    mav_type = Counter(b[1] for b in mine).most_common(1)[0][0]
+    return vehicle_from_mav_type(mav_type, "HEARTBEAT")
 
 
 class LogFormatError(ValueError):

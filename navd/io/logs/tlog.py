@@ -30,7 +30,6 @@ import dataclasses
 import io
 import math
 import statistics
-from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -44,7 +43,7 @@ from navd.io.logs.common import (
     LogOptions,
     Reference,
     SampleBuilder,
-    vehicle_from_mav_type,
+    vehicle_from_heartbeats,
 )
 from navd.io.mavlink import MavlinkDecoder, MavlinkInputConfig
 from navd.types import GnssSample, ImuSample
@@ -179,27 +178,7 @@ def read_tlog(path: str | Path, options: LogOptions | None = None) -> LogData:
     out = sink.getvalue().strip()
     if out:
         notes.append("pymavlink: " + out.replace("\n", "; ")[:500])
-    return b.build("tlog", p, ref, damage, notes, vehicle=_vehicle(beats, imu_sys))
-
-
-# HEARTBEAT types that are not the vehicle: generic, antenna tracker, ground station,
-# companion computer, and peripherals (gimbal .. ) that send their own heartbeat
-_NOT_A_VEHICLE = frozenset({0, 5, 6, 18, 26, 27, 30, 31, 32, 33, 34, 36, 37, 38, 39, 40, 41,
-                            42, 44, 48})
-_MAV_AUTOPILOT_INVALID = 8  # a ground station or peripheral, not a flight controller
-
-
-def _vehicle(beats: list[tuple[int, int, int]], imu_sys: int | None) -> tuple[str, str]:
-    """(navd profile or "", what states it) from the HEARTBEATs of the flight controller:
-    the system that sent the IMU messages (any system if none of its heartbeats is in the
-    log), the most common MAV_TYPE among them."""
-    own = [b for b in beats
-           if b[1] not in _NOT_A_VEHICLE and b[2] != _MAV_AUTOPILOT_INVALID]
-    mine = [b for b in own if b[0] == imu_sys] or own
-    if not mine:
-        return "", ""
-    mav_type = Counter(b[1] for b in mine).most_common(1)[0][0]
-    return vehicle_from_mav_type(mav_type, "HEARTBEAT")
+    return b.build("tlog", p, ref, damage, notes, vehicle=vehicle_from_heartbeats(beats, imu_sys))
 
 
 def _reference(att: list[tuple[int, int, float, float, float]],

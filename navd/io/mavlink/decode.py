@@ -98,6 +98,7 @@ MAX_TRACKED_SOURCES = 8
 _POL_MSG_ID = pol_wire.MSG_ID
 _L_SEQ, _L_LAST_T = hb.L_SEQ, hb.L_LAST_T
 _HIGHRES_ID = mavlink.MAVLINK_MSG_ID_HIGHRES_IMU
+_HEARTBEAT_ID = mavlink.MAVLINK_MSG_ID_HEARTBEAT
 _HIGHRES_SIZE = LAYOUTS[_HIGHRES_ID].unpacker.size
 # the HIGHRES_IMU fields the per-sample path reads: time_usec, acc, gyro, (mag, pressures,
 # temperature skipped), fields_updated, id
@@ -268,6 +269,9 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
         self._ms = _MsUnwrapper()
         self._sources: dict[tuple[int, int], _Source] = {}
         self._last_gnss_t_us: dict[tuple[int, int, int], int] = {}
+        # (MAV_TYPE, MAV_AUTOPILOT) of each source's last HEARTBEAT: what the vehicle says it
+        # is (the daemon compares it with [filter] profile); not a filter input
+        self.heartbeats: dict[tuple[int, int], tuple[int, int]] = {}
         self._handlers: dict[int, tuple[Layout, Handler]] = {}
         self.source_lock = (SourceLock(cfg.relock_s, self._reject, _source_text)
                             if cfg.relock_s is not None else None)
@@ -535,6 +539,10 @@ class MavlinkDecoder(DecoderBase[MavlinkInputConfig]):
             self._track(source, f.seq)
         if f.msgid == _POL_MSG_ID and self.config.polarization:
             return self._polarization(f, src, recv_t_us)
+        if f.msgid == _HEARTBEAT_ID:
+            # noted, still "ignored": nothing of it reaches the filter
+            v = payload_fields(LAYOUTS[_HEARTBEAT_ID], f.payload)
+            self.heartbeats[src] = (int(v[1]), int(v[2]))
         h = self._handlers.get(f.msgid)
         if h is None:
             self.counters.inc("ignored")

@@ -40,6 +40,8 @@ def _layout(name: str, msgid: int, crc_extra: int, fmt: str, fields: str) -> tup
 
 _IMU3 = "xacc yacc zacc xgyro ygyro zgyro xmag ymag zmag"
 LAYOUTS: dict[int, Layout] = dict((
+    _layout("HEARTBEAT", 0, 50, "<I5B",
+            "custom_mode type autopilot base_mode system_status mavlink_version"),
     _layout("HIGHRES_IMU", 105, 93, "<Q13fHB",
             f"time_usec {_IMU3} abs_pressure diff_pressure pressure_alt temperature "
             "fields_updated id"),
