@@ -40,7 +40,7 @@ def _sail(learner: CourseLearner, turn_deg: float, seed: int = 1) -> tuple[float
     psi = math.radians(30.0)
     v = SPEED * np.array([math.cos(psi), math.sin(psi)]) + CURRENT
     yaw = math.atan2(v[1], v[0])  # set to the course over ground: the crab is its error
-    learner.yaw_set((VEL_SD / SPEED) ** 2 + math.radians(1.0) ** 2, 0.0, 0.0, yaw,
+    learner.yaw_set((VEL_SD / SPEED) ** 2 + math.radians(1.0) ** 2, 0.0, yaw,
                     float(v[0]), float(v[1]), 0.0, 1e-8)
     learner.end_epoch(np.zeros((3, 3)), 0.0, yaw, 0.0)
     r = VEL_SD**2 + (SPEED * math.radians(0.3)) ** 2
@@ -55,7 +55,7 @@ def _sail(learner: CourseLearner, turn_deg: float, seed: int = 1) -> tuple[float
         wn, we = learner.water(float(vm[0]), float(vm[1]))
         ins_n, ins_e = learner.water(float(v[0]), float(v[1]))
         y = -math.sin(yaw) * wn + math.cos(yaw) * we
-        learner.step_lateral(y, r, 100.0, 0.0, 0.0, yaw, ins_n, ins_e, t)
+        learner.step_lateral(y, r, 100.0, 0.0, yaw, ins_n, ins_e, t)
         learner.end_epoch(np.zeros((3, 3)), 0.0, yaw, 0.0)
     err = (yaw - float(learner.x[E]) - psi + math.pi) % (2.0 * math.pi) - math.pi
     return err, SPEED

@@ -615,7 +615,7 @@ class Estimator:
             if src == "config":
                 crs.yaw_known(float(P[2, 2]), yaw, fix.t_us * 1e-6, float(P[11, 11]))
             else:
-                P[2, 2] = crs.yaw_set(float(P[2, 2]), 0.0, 0.0, yaw, fix.vel_n, fix.vel_e,
+                P[2, 2] = crs.yaw_set(float(P[2, 2]), 0.0, yaw, fix.vel_n, fix.vel_e,
                                       fix.t_us * 1e-6, float(P[11, 11]))
         self.imu_noise.close_window(self._q, self._level_static)
         self._stage = _NAV

@@ -155,8 +155,7 @@ class CourseLearner:
         """GNSS (ground) velocity minus the learnt current, NED m/s."""
         return vn - float(self.x[CN]), ve - float(self.x[CE])
 
-    def _boat_regressors(self, a_lat: float, yaw_turned: float, yaw: float,
-                         wn: float, we: float) -> float:
+    def _boat_regressors(self, a_lat: float, yaw: float, wn: float, we: float) -> float:
         """The lateral-velocity model's row at the estimate (boat), see :meth:`step_lateral`;
         returns the speed through the water along the learnt heading, m/s."""
         h = self._h
@@ -178,7 +177,7 @@ class CourseLearner:
         estimated heading ``yaw`` (rad) and water velocity ``wn, we`` (m/s)."""
         if self.n != _N:
             return a_lat * a_lat * float(self.P[K, K])
-        v = self._boat_regressors(a_lat, 0.0, yaw, wn, we)
+        v = self._boat_regressors(a_lat, yaw, wn, we)
         return self._quad(self._h, (K, CN, CE)) / (v * v)
 
     def _quad(self, h: Arr, idx: tuple[int, ...]) -> float:
@@ -208,8 +207,8 @@ class CourseLearner:
         h[S] = turned
         return self._update(zc, sc, gate, True)
 
-    def step_lateral(self, y: float, r: float, gate: float, a_lat: float,
-                     yaw_turned: float, yaw: float, wn: float, we: float, t_s: float) -> bool:
+    def step_lateral(self, y: float, r: float, gate: float, a_lat: float, yaw: float,
+                     wn: float, we: float, t_s: float) -> bool:
         """One Kalman step for k, s, the current and e (boat); whether it updated.
 
         ``y``: the water velocity's component across the main filter's heading ``yaw``
@@ -217,9 +216,9 @@ class CourseLearner:
         With the true water velocity V u(psi + k a_lat) (u the unit vector of an angle, V
         the speed through the water) and psi = yaw - e, exactly::
 
-            y = n_hat . dc - V sin(e - k a_lat) - V A ds + v,   v ~ N(0, r)
+            y = n_hat . dc - V sin(e - k a_lat) + v,   v ~ N(0, r)
 
-        (dc = c - c_hat; the scale error's heading error A ds as in :meth:`step`).  Linear
+        (dc = c - c_hat; the scale error's heading error is in e, :meth:`begin_epoch`).  Linear
         in the current, unlike the course angle (a 1 m/s current at 3 m/s turns the course
         by 20 deg), and its row comes from the estimated heading and the INS velocity less
         the current (``wn, we``, m/s), not from the measured velocity: a row that turned
@@ -239,7 +238,7 @@ class CourseLearner:
             v[_VLP] += (along - float(v[_VLP])) * min(
                 max(t_s - float(v[_T_LP]), 0.0) / _V_TAU, 1.0)
             v[_T_LP] = t_s
-        speed = self._boat_regressors(a_lat, yaw_turned, yaw, wn, we)
+        speed = self._boat_regressors(a_lat, yaw, wn, we)
         e = float(self.x[E])
         k = float(self.x[K])
         # the row is linear in the current and in e, but their product is in the model
@@ -388,8 +387,8 @@ class CourseLearner:
         if self.n == _N and self._v[_E_SET]:
             self.P[E, E] += var
 
-    def yaw_set(self, p22: float, a_lat: float, yaw_turned: float, yaw: float,
-                wn: float, we: float, t_s: float, rate_var: float) -> float:
+    def yaw_set(self, p22: float, a_lat: float, yaw: float, wn: float, we: float,
+                t_s: float, rate_var: float) -> float:
         """The main filter's yaw was just set to a course, ``yaw`` rad (variance ``p22``
         rad^2 from the course's own noise; ``wn, we``: the velocity through the water by this
         learner's current, m/s): the lateral velocity y0 = n(yaw) . w (0 when the yaw is the
@@ -406,7 +405,7 @@ class CourseLearner:
         self.x[E] = 0.0
         v[_VLP] = math.cos(yaw) * wn + math.sin(yaw) * we
         v[_T_LP] = t_s
-        v_ = self._boat_regressors(a_lat, yaw_turned, yaw, wn, we)
+        v_ = self._boat_regressors(a_lat, yaw, wn, we)
         self.x[E] = (math.sin(yaw) * wn - math.cos(yaw) * we) / v_
         h = self._h
         for i in range(_N):

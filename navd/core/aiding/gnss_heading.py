@@ -202,15 +202,15 @@ class CourseHeading:
         if self.watch is not None:
             self.watch.yaw_known(p22, yaw, t_s, rate_var)
 
-    def yaw_set(self, p22: float, a_lat: float, turned: float, yaw: float, wn: float,
-                we: float, t_s: float, rate_var: float) -> float:
+    def yaw_set(self, p22: float, a_lat: float, yaw: float, wn: float, we: float,
+                t_s: float, rate_var: float) -> float:
         """The yaw was set to the course of (wn, we) (through the water by the learnt
         current); returns the yaw variance for the main filter."""
         if self.watch is not None:
             w = self.watch
             w_n, w_e = w.water(*self.learn.ground(wn, we))
-            w.yaw_set(p22, a_lat, turned, yaw, w_n, w_e, t_s, rate_var)
-        return self.learn.yaw_set(p22, a_lat, turned, yaw, wn, we, t_s, rate_var)
+            w.yaw_set(p22, a_lat, yaw, w_n, w_e, t_s, rate_var)
+        return self.learn.yaw_set(p22, a_lat, yaw, wn, we, t_s, rate_var)
 
     def widen(self, var: float) -> None:
         self.learn.widen(var)
@@ -322,15 +322,14 @@ class CourseHeading:
         wn, we = float(self._wv[0]), float(self._wv[1])
         m = est.mat_nb
         yaw = math.atan2(m[1, 0], m[0, 0])
-        turned = float(est.gyro_sf[SF_YAW_Z])
         if lrn.current:
             # across the heading through the water, m/s (CourseLearner.step_lateral)
             ins_n, ins_e = lrn.water(float(est.vel_n[0]), float(est.vel_n[1]))
             learnt = lrn.step_lateral(-math.sin(yaw) * wn + math.cos(yaw) * we,
                                       (wn * wn + we * we) * r_white, self._gate1, a_lat,
-                                      turned, yaw, ins_n, ins_e, g.t_us * 1e-6)
+                                      yaw, ins_n, ins_e, g.t_us * 1e-6)
         else:
-            learnt = lrn.step(zc, sc, self._gate1, a_lat, turned)
+            learnt = lrn.step(zc, sc, self._gate1, a_lat, float(est.gyro_sf[SF_YAW_Z]))
         if learnt:
             est.gyro_sf[SF_SCALE_Z] = lrn.x[S]
         w = self.watch
@@ -340,8 +339,8 @@ class CourseHeading:
             w_n, w_e = w.water(gn, ge)
             i_n, i_e = w.water(float(est.vel_n[0]), float(est.vel_n[1]))
             w.step_lateral(-math.sin(yaw) * w_n + math.cos(yaw) * w_e,
-                           (w_n * w_n + w_e * w_e) * r_white, self._gate1, a_lat, turned,
-                           yaw, i_n, i_e, g.t_us * 1e-6)
+                           (w_n * w_n + w_e * w_e) * r_white, self._gate1, a_lat, yaw,
+                           i_n, i_e, g.t_us * 1e-6)
 
     def fuse_with_velocity(self, est: Estimator, g: GnssSample, s_sd: float,
                            hold: int, hold_mask: int = 0) -> None:
@@ -461,8 +460,7 @@ class CourseHeading:
         sd = s_sd / math.hypot(vn, ve)
         P[2, 2] = self.yaw_set(
             sd * sd + self.sd_beta**2 + (1.0 * math.pi / 180.0) ** 2 + extra_sd**2,
-            self.learn.a_lat, float(est.gyro_sf[SF_YAW_Z]), chi, vn, ve, est.t_us * 1e-6,
-            rate_var_down(est))
+            self.learn.a_lat, chi, vn, ve, est.t_us * 1e-6, rate_var_down(est))
         self.rejects = 0
         # the flag waits for the course to agree over time (heading_alignment.py)
         self.align.yaw_given(est, from_course=True)
