@@ -67,10 +67,11 @@ def test_crc_matches_pymavlink(data: bytes, extra: int) -> None:
 
 
 def test_layouts_are_pymavlinks_wire_order() -> None:
-    """GIVEN navd's hand-written payload layouts of the messages it reads,
+    """GIVEN navd's hand-written payload layouts of the messages it reads (and HEARTBEAT,
+    whose vehicle type the daemon compares with its profile),
     WHEN compared with pymavlink's generated classes,
     THEN size, field wire order and CRC_EXTRA agree for every one."""
-    assert {lay.name for lay in LAYOUTS.values()} == ALL_IMU | ALL_GNSS
+    assert {lay.name for lay in LAYOUTS.values()} == ALL_IMU | ALL_GNSS | {"HEARTBEAT"}
     for msgid, lay in LAYOUTS.items():
         cls = mav.mavlink_map[msgid]
         assert cls.msgname == lay.name
