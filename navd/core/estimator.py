@@ -129,6 +129,9 @@ class Estimator:
         self._R = v.R
         self._M = v.M
         self.mat_nb[:, :] = np.eye(3)
+        # the GNSS antenna's position, body FRD (3,) m: the configured one, plus what a
+        # boat learns from its roll (aiding/course_learner.py)
+        self.lever_b = v.lever_b
         v.lever_b[:] = c.gnss.lever_arm
         # the IMU's axes to the body's ([imu] mount_*_deg); None: the identity, nothing to turn
         euler_to_mat_into(v.mat_bs, *c.imu.mount)

@@ -47,8 +47,9 @@ from navd.config import EstimatorConfig
 
 Arr = npt.NDArray[np.float64]
 
-K, S, CN, CE, E, D = range(6)
-_N = 6
+K, S, CN, CE, E, D, LX, LY, LZ = range(9)
+_N = 9  # the boat's states; a watch keeps the first _NC, a car the first two
+_NC = 6
 
 # sideslip gain: prior sigma (rad per m/s^2; cars slip up to a few deg per m/s^2), the
 # smallest lateral acceleration that teaches it, and a random walk per update so that a
@@ -111,7 +112,12 @@ class CourseLearner:
         self._q_e = cfg.imu.gyro_arw * cfg.imu.gyro_arw
         self._q_d = cfg.imu.gyro_bias_rw * cfg.imu.gyro_bias_rw
         # the boat learns k, s, c and e; other profiles k and s
-        self.n = _N if self._c_var0 > 0.0 else 2
+        self.n = (_NC if watch else _N) if self._c_var0 > 0.0 else 2
+        # the boat's antenna lever-arm correction (body FRD, m) is learnt from the lateral
+        # velocity the hull's roll and yaw swing it through; its prior is the configured
+        # lever arm's uncertainty
+        self._l_var0 = cfg.gnss.lever_arm_sd * cfg.gnss.lever_arm_sd
+        self._hl = np.zeros(3)  # the epoch's lever-arm row (lever_row)
         self.x = np.zeros(_N)
         self.P = np.zeros((_N, _N))
         self._h = np.zeros(_N)
@@ -124,7 +130,7 @@ class CourseLearner:
         self.P[:, :] = 0.0
         self.P[K, K] = SLIP_SD0 * SLIP_SD0
         self.P[S, S] = self._sf_var0
-        if self.n == _N and not self.watch:
+        if self.n >= _NC and not self.watch:
             # a hull does not slip as a tyre does, and in a turn the slip and the current
             # explain the same lateral velocity: the boat learns no slip gain (its leeway
             # is in [heading] sideslip_sd_deg).  A watch on a car keeps it: a car's slip
@@ -132,13 +138,16 @@ class CourseLearner:
             self.P[K, K] = 0.0
             self.P[CN, CN] = self._c_var0
             self.P[CE, CE] = self._c_var0
+        if self.n == _N:
+            for i in (LX, LY, LZ):
+                self.P[i, i] = self._l_var0
         self._v[:] = 0.0
         self._v[_RQ] = 1.0
 
     @property
     def current(self) -> bool:
         """Whether the water current (and the heading error) are learnt."""
-        return self.n == _N
+        return self.n >= _NC
 
     @property
     def a_lat(self) -> float:
@@ -170,12 +179,39 @@ class CourseLearner:
         h[CE] = math.cos(yaw) + se * ul_e
         h[E] = -speed * ce
         h[D] = 0.0
+        if self.n == _N:
+            h[LX] = self._hl[0]
+            h[LY] = self._hl[1]
+            h[LZ] = self._hl[2]
         return speed
+
+    def lever_row(self, mat_nb: Arr, rate_b: Arr, yaw: float) -> None:
+        """The lever-arm part of this epoch's boat row: the lateral velocity n_hat . C (w x dl)
+        = dl . (a x w), a = C^T n_hat the lateral direction in body axes; ``rate_b`` the
+        body rate (rad/s), ``yaw`` the row's heading (rad).  Zero for the next rows until
+        called again (:meth:`clear_lever_row`)."""
+        nn, ne = -math.sin(yaw), math.cos(yaw)
+        a0 = mat_nb[0, 0] * nn + mat_nb[1, 0] * ne
+        a1 = mat_nb[0, 1] * nn + mat_nb[1, 1] * ne
+        a2 = mat_nb[0, 2] * nn + mat_nb[1, 2] * ne
+        w0, w1, w2 = rate_b[0], rate_b[1], rate_b[2]
+        hl = self._hl
+        hl[0] = a1 * w2 - a2 * w1
+        hl[1] = a2 * w0 - a0 * w2
+        hl[2] = a0 * w1 - a1 * w0
+
+    def clear_lever_row(self) -> None:
+        self._hl[:] = 0.0
+
+    @property
+    def lever(self) -> Arr:
+        """The learnt lever-arm correction, body FRD (3,) m (boat; zeros otherwise)."""
+        return self.x[LX:LZ + 1]
 
     def course_var(self, a_lat: float, yaw: float, wn: float, we: float) -> float:
         """Variance the learnt sideslip (and current) leave in the course, rad^2, at the
         estimated heading ``yaw`` (rad) and water velocity ``wn, we`` (m/s)."""
-        if self.n != _N:
+        if self.n < _NC:
             return a_lat * a_lat * float(self.P[K, K])
         v = self._boat_regressors(a_lat, yaw, wn, we)
         return self._quad(self._h, (K, CN, CE)) / (v * v)
@@ -233,7 +269,17 @@ class CourseLearner:
             return False
         v = self._v
         e0 = float(self.x[E])
-        along = math.cos(yaw - e0) * wn + math.sin(yaw - e0) * we
+        # the speed through the water along the heading, taking out only as much of the
+        # learnt current along it as is known: a straight leg leaves that part at its
+        # prior, and a speed read from a wandering estimate of it (1 m/s off on seed 1 of
+        # a mast in waves) turned the first turn into a 30-90 deg disagreement
+        un, ue = math.cos(yaw - e0), math.sin(yaw - e0)
+        P = self.P
+        var_along = (un * un * float(P[CN, CN]) + 2.0 * un * ue * float(P[CN, CE])
+                     + ue * ue * float(P[CE, CE]))
+        known = max(0.0, 1.0 - var_along / self._c_var0)
+        along = (un * (wn + (1.0 - known) * float(self.x[CN]))
+                 + ue * (we + (1.0 - known) * float(self.x[CE])))
         if math.isfinite(along):
             v[_VLP] += (along - float(v[_VLP])) * min(
                 max(t_s - float(v[_T_LP]), 0.0) / _V_TAU, 1.0)
@@ -308,7 +354,7 @@ class CourseLearner:
                 P[j, i] = P[i, j]
         lim = SF_MAX_SD * self._sf_sd0
         x[S] = min(max(float(x[S]), -lim), lim)
-        if n != _N or self.watch:
+        if n < _NC or self.watch:
             P[K, K] += SLIP_Q
         if self._sf_var0 > 0.0:
             P[S, S] += SF_Q
@@ -319,7 +365,8 @@ class CourseLearner:
         the rate d since the last epoch, plus the gyro's white noise, plus the scale error
         times the yaw turned; d and the current by their walks."""
         v = self._v
-        if self.n != _N or not v[_E_SET]:
+        n = self.n
+        if n < _NC or not v[_E_SET]:
             return
         dt = min(max(t_s - float(v[_T]), 0.0), 10.0)
         turned = (yaw - float(v[_YAW_END]) + math.pi) % (2.0 * math.pi) - math.pi
@@ -327,9 +374,9 @@ class CourseLearner:
         x, P = self.x, self.P
         x[E] += x[D] * dt
         # P <- F P F^T with F = I + dt (row e, column d) + turned (row e, column s)
-        for j in range(_N):
+        for j in range(n):
             P[E, j] += dt * P[D, j] + turned * P[S, j]
-        for i in range(_N):
+        for i in range(n):
             P[i, E] += dt * P[i, D] + turned * P[i, S]
         P[E, E] += self._q_e * dt
         P[D, D] += self._q_d * dt
@@ -342,7 +389,7 @@ class CourseLearner:
         happened this epoch) and its gyro bias about down by ``d_rate`` rad/s (d moves the
         other way); its yaw variance is not left below P_ee."""
         v = self._v
-        if self.n != _N or not v[_E_SET]:
+        if self.n < _NC or not v[_E_SET]:
             return
         if v[_SET_NOW]:
             v[_SET_NOW] = 0.0
@@ -366,7 +413,7 @@ class CourseLearner:
         """The main filter's yaw was set or widened by something other than the course
         (config, its own observability, a recovery): e starts from its variance ``p22``
         (rad^2), unrelated to the learnt terms; ``rate_var`` as in :meth:`yaw_set`."""
-        if self.n != _N:
+        if self.n < _NC:
             return
         self._first_rate(rate_var)
         x, P = self.x, self.P
@@ -384,7 +431,7 @@ class CourseLearner:
     def widen(self, var: float) -> None:
         """The main filter added ``var`` rad^2 to its yaw variance (a divergence reset): so
         does e."""
-        if self.n == _N and self._v[_E_SET]:
+        if self.n >= _NC and self._v[_E_SET]:
             self.P[E, E] += var
 
     def yaw_set(self, p22: float, a_lat: float, yaw: float, wn: float, we: float,
@@ -397,7 +444,8 @@ class CourseLearner:
         ``rate_var``: the main filter's variance of its gyro bias about down, (rad/s)^2,
         d's prior the first time.  Returns the yaw variance to give the main filter (rad^2;
         ``p22`` unless the current is learnt)."""
-        if self.n != _N:
+        n = self.n
+        if n < _NC:
             return p22
         v = self._v
         P = self.P
@@ -408,16 +456,16 @@ class CourseLearner:
         v_ = self._boat_regressors(a_lat, yaw, wn, we)
         self.x[E] = (math.sin(yaw) * wn - math.cos(yaw) * we) / v_
         h = self._h
-        for i in range(_N):
+        for i in range(n):
             if i == E:
                 continue
             a = 0.0
-            for j in range(_N):
+            for j in range(n):
                 if j != E:
                     a += float(P[i, j]) * h[j]
             P[i, E] = a / v_
             P[E, i] = a / v_
-        pee = p22 + self._quad(h, (K, S, CN, CE)) / (v_ * v_)
+        pee = p22 + self._quad(h, (K, S, CN, CE, LX, LY, LZ)) / (v_ * v_)
         P[E, E] = pee
         v[_E_SET] = 1.0
         v[_SET_NOW] = 1.0

@@ -325,9 +325,14 @@ class CourseHeading:
         if lrn.current:
             # across the heading through the water, m/s (CourseLearner.step_lateral)
             ins_n, ins_e = lrn.water(float(est.vel_n[0]), float(est.vel_n[1]))
+            lrn.lever_row(m, est.rate_b, yaw)
             learnt = lrn.step_lateral(-math.sin(yaw) * wn + math.cos(yaw) * we,
                                       (wn * wn + we * we) * r_white, self._gate1, a_lat,
                                       yaw, ins_n, ins_e, g.t_us * 1e-6)
+            # the antenna's learnt position goes into every GNSS row from the next epoch
+            lb, l0, dl = est.lever_b, self.cfg.gnss.lever_arm, lrn.lever
+            for i in range(3):
+                lb[i] = l0[i] + dl[i]
         else:
             learnt = lrn.step(zc, sc, self._gate1, a_lat, float(est.gyro_sf[SF_YAW_Z]))
         if learnt:
