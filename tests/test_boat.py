@@ -54,8 +54,7 @@ def _sail(learner: CourseLearner, turn_deg: float, seed: int = 1) -> tuple[float
         vm = v + rng.normal(0.0, VEL_SD, 2)
         wn, we = learner.water(float(vm[0]), float(vm[1]))
         ins_n, ins_e = learner.water(float(v[0]), float(v[1]))
-        y = -math.sin(yaw) * wn + math.cos(yaw) * we
-        learner.step_lateral(y, r, 100.0, 0.0, yaw, ins_n, ins_e, t)
+        learner.step_lateral(wn, we, r, 100.0, 0.0, yaw, ins_n, ins_e, t)
         learner.end_epoch(np.zeros((3, 3)), 0.0, yaw, 0.0)
     err = (yaw - float(learner.x[E]) - psi + math.pi) % (2.0 * math.pi) - math.pi
     return err, SPEED

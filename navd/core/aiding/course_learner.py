@@ -164,20 +164,17 @@ class CourseLearner:
         """GNSS (ground) velocity minus the learnt current, NED m/s."""
         return vn - float(self.x[CN]), ve - float(self.x[CE])
 
-    def _boat_regressors(self, a_lat: float, yaw: float, wn: float, we: float) -> float:
-        """The lateral-velocity model's row at the estimate (boat), see :meth:`step_lateral`;
-        returns the speed through the water along the learnt heading, m/s."""
+    def _boat_regressors(self, a_lat: float, psi_l: float) -> float:
+        """The lateral-velocity row (boat) in the learner's own heading frame ``psi_l`` =
+        yaw - e_hat (rad), see :meth:`step_lateral`; returns the row's speed through the
+        water, m/s."""
         h = self._h
-        e = float(self.x[E])
-        se, ce = math.sin(e), math.cos(e)
-        # the learnt heading yaw - e and its unit vector
-        ul_n, ul_e = math.cos(yaw - e), math.sin(yaw - e)
         speed = max(float(self._v[_VLP]), 0.1)
         h[K] = speed * a_lat
         h[S] = 0.0  # the scale error enters through e (begin_epoch)
-        h[CN] = -math.sin(yaw) + se * ul_n
-        h[CE] = math.cos(yaw) + se * ul_e
-        h[E] = -speed * ce
+        h[CN] = -math.sin(psi_l)
+        h[CE] = math.cos(psi_l)
+        h[E] = -speed
         h[D] = 0.0
         if self.n == _N:
             h[LX] = self._hl[0]
@@ -190,7 +187,8 @@ class CourseLearner:
         = dl . (a x w), a = C^T n_hat the lateral direction in body axes; ``rate_b`` the
         body rate (rad/s), ``yaw`` the row's heading (rad).  Zero for the next rows until
         called again (:meth:`clear_lever_row`)."""
-        nn, ne = -math.sin(yaw), math.cos(yaw)
+        psi_l = yaw - float(self.x[E])
+        nn, ne = -math.sin(psi_l), math.cos(psi_l)
         a0 = mat_nb[0, 0] * nn + mat_nb[1, 0] * ne
         a1 = mat_nb[0, 1] * nn + mat_nb[1, 1] * ne
         a2 = mat_nb[0, 2] * nn + mat_nb[1, 2] * ne
@@ -213,7 +211,7 @@ class CourseLearner:
         estimated heading ``yaw`` (rad) and water velocity ``wn, we`` (m/s)."""
         if self.n < _NC:
             return a_lat * a_lat * float(self.P[K, K])
-        v = self._boat_regressors(a_lat, yaw, wn, we)
+        v = self._boat_regressors(a_lat, yaw - float(self.x[E]))
         return self._quad(self._h, (K, CN, CE)) / (v * v)
 
     def _quad(self, h: Arr, idx: tuple[int, ...]) -> float:
@@ -243,60 +241,59 @@ class CourseLearner:
         h[S] = turned
         return self._update(zc, sc, gate, True)
 
-    def step_lateral(self, y: float, r: float, gate: float, a_lat: float, yaw: float,
-                     wn: float, we: float, t_s: float) -> bool:
-        """One Kalman step for k, s, the current and e (boat); whether it updated.
+    def step_lateral(self, wn: float, we: float, r: float, gate: float, a_lat: float,
+                     yaw: float, ins_n: float, ins_e: float, t_s: float) -> bool:
+        """One Kalman step for k, s, the current, e, d and the lever arm (boat); whether it
+        updated.
 
-        ``y``: the water velocity's component across the main filter's heading ``yaw``
-        (rad), n_hat = (-sin yaw, cos yaw): ``y = n_hat . (v_gnss - C (w x l) - c_hat)``, m/s.
-        With the true water velocity V u(psi + k a_lat) (u the unit vector of an angle, V
-        the speed through the water) and psi = yaw - e, exactly::
+        ``wn, we``: the fix's lever-arm-free velocity less the learnt current, m/s;
+        ``yaw``: the main filter's heading, rad; ``ins_n, ins_e``: the INS velocity, m/s.
+        The row is taken in the learner's own heading frame psi_l = yaw - e_hat, which the
+        main filter's corrections do not move (they move yaw and e_hat alike): the water
+        velocity across it, y = n(psi_l) . w.  With the true water velocity V u(psi + k a_lat)
+        (u the unit vector of an angle, V the speed through the water), exactly::
 
-            y = n_hat . dc - V sin(e - k a_lat) + v,   v ~ N(0, r)
+            y = V sin(k a_lat - de) + n(psi_l) . dc + v,   v ~ N(0, r)
 
-        (dc = c - c_hat; the scale error's heading error is in e, :meth:`begin_epoch`).  Linear
-        in the current, unlike the course angle (a 1 m/s current at 3 m/s turns the course
-        by 20 deg), and its row comes from the estimated heading and the INS velocity less
-        the current (``wn, we``, m/s), not from the measured velocity: a row that turned
-        with the fix's noise made the current look observable on a straight leg, where only
-        the crab (the current across the heading, with the heading error) is.  The row is
-        taken at the estimate e_hat, V = u(yaw - e_hat) . w: e_hat carries every correction
-        the main filter made since the yaw was set, so a row at e = 0 would read each of
-        them as a turn of the boat and learn the current along the track from it.  ``r``:
-        m^2/s^2; ``gate``: chi-square(1) bound.
+        with de = e - e_hat, dc = c - c_hat (the scale error's heading error is in e,
+        :meth:`begin_epoch`; the lever arm's lateral velocity, :meth:`lever_row`, adds
+        h_l . dl).  Linear in the current, unlike the course angle (a 1 m/s current at 3 m/s
+        turns the course by 20 deg), and its row comes from the estimated heading and the
+        INS velocity, not from the fix: a row that turned with the fix's noise made the
+        current look observable on a straight leg, where only the crab (the current across
+        the heading, with the heading error) is; a row in the main filter's frame, or one
+        taken at e_hat in it, read the main filter's corrections as turns.  ``r``: m^2/s^2;
+        ``gate``: chi-square(1) bound.
         """
+        v = self._v
+        psi_l = yaw - float(self.x[E])
+        un, ue = math.cos(psi_l), math.sin(psi_l)
+        y = -ue * wn + un * we
         if not math.isfinite(y):
             return False
-        v = self._v
-        e0 = float(self.x[E])
-        # the speed through the water along the heading, taking out only as much of the
-        # learnt current along it as is known: a straight leg leaves that part at its
-        # prior, and a speed read from a wandering estimate of it (1 m/s off on seed 1 of
-        # a mast in waves) turned the first turn into a 30-90 deg disagreement
-        un, ue = math.cos(yaw - e0), math.sin(yaw - e0)
+        # the speed through the water along the heading, taking out of the INS velocity
+        # only as much of the learnt current along it as is known: a straight leg leaves
+        # that part at its prior, and a speed read from a wandering estimate of it (1 m/s
+        # off on seed 1 of a mast in waves) turned the first turn into a 30-90 deg
+        # disagreement
         P = self.P
         var_along = (un * un * float(P[CN, CN]) + 2.0 * un * ue * float(P[CN, CE])
                      + ue * ue * float(P[CE, CE]))
         known = max(0.0, 1.0 - var_along / self._c_var0)
-        along = (un * (wn + (1.0 - known) * float(self.x[CN]))
-                 + ue * (we + (1.0 - known) * float(self.x[CE])))
+        along = (un * (ins_n + (1.0 - known) * float(self.x[CN]))
+                 + ue * (ins_e + (1.0 - known) * float(self.x[CE])))
         if math.isfinite(along):
             v[_VLP] += (along - float(v[_VLP])) * min(
                 max(t_s - float(v[_T_LP]), 0.0) / _V_TAU, 1.0)
             v[_T_LP] = t_s
-        speed = self._boat_regressors(a_lat, yaw, wn, we)
-        e = float(self.x[E])
-        k = float(self.x[K])
+        speed = self._boat_regressors(a_lat, psi_l)
         # the row is linear in the current and in e, but their product is in the model
-        # too: V sin e with V = u . (v - c) carries (u . dc) e, whose variance (current
+        # too: V sin de with V = u . (v - c) carries (u . dc) de, whose variance (current
         # along the heading times heading error) is the row's error while both are wide
-        P = self.P
-        un, ue = math.cos(yaw - e), math.sin(yaw - e)
-        var_along = (un * un * float(P[CN, CN]) + 2.0 * un * ue * float(P[CN, CE])
-                     + ue * ue * float(P[CE, CE]))
         r += var_along * float(P[E, E])
         v[_NIS] = -1.0
-        ok = self._update(y + speed * math.sin(e - k * a_lat), r * float(v[_RQ]), gate, False)
+        ok = self._update(y - speed * math.sin(float(self.x[K]) * a_lat),
+                          r * float(v[_RQ]), gate, False)
         if v[_NIS] >= 0.0:
             # NIS of this row (gated ones excluded): its mean is 1 when r is right
             v[_RQ] = max(1.0, float(v[_RQ]) * (1.0 + _RQ_GAIN * (float(v[_NIS]) - 1.0)))
@@ -453,7 +450,7 @@ class CourseLearner:
         self.x[E] = 0.0
         v[_VLP] = math.cos(yaw) * wn + math.sin(yaw) * we
         v[_T_LP] = t_s
-        v_ = self._boat_regressors(a_lat, yaw, wn, we)
+        v_ = self._boat_regressors(a_lat, yaw)
         self.x[E] = (math.sin(yaw) * wn - math.cos(yaw) * we) / v_
         h = self._h
         for i in range(n):

@@ -326,9 +326,8 @@ class CourseHeading:
             # across the heading through the water, m/s (CourseLearner.step_lateral)
             ins_n, ins_e = lrn.water(float(est.vel_n[0]), float(est.vel_n[1]))
             lrn.lever_row(m, est.rate_b, yaw)
-            learnt = lrn.step_lateral(-math.sin(yaw) * wn + math.cos(yaw) * we,
-                                      (wn * wn + we * we) * r_white, self._gate1, a_lat,
-                                      yaw, ins_n, ins_e, g.t_us * 1e-6)
+            learnt = lrn.step_lateral(wn, we, (wn * wn + we * we) * r_white, self._gate1,
+                                      a_lat, yaw, ins_n, ins_e, g.t_us * 1e-6)
             # the antenna's learnt position goes into every GNSS row from the next epoch
             lb, l0, dl = est.lever_b, self.cfg.gnss.lever_arm, lrn.lever
             for i in range(3):
@@ -343,9 +342,8 @@ class CourseHeading:
             gn, ge = lrn.ground(wn, we)
             w_n, w_e = w.water(gn, ge)
             i_n, i_e = w.water(float(est.vel_n[0]), float(est.vel_n[1]))
-            w.step_lateral(-math.sin(yaw) * w_n + math.cos(yaw) * w_e,
-                           (w_n * w_n + w_e * w_e) * r_white, self._gate1, a_lat, yaw,
-                           i_n, i_e, g.t_us * 1e-6)
+            w.step_lateral(w_n, w_e, (w_n * w_n + w_e * w_e) * r_white, self._gate1, a_lat,
+                           yaw, i_n, i_e, g.t_us * 1e-6)
 
     def fuse_with_velocity(self, est: Estimator, g: GnssSample, s_sd: float,
                            hold: int, hold_mask: int = 0) -> None:
