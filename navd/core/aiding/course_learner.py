@@ -25,9 +25,10 @@ A current does persist: on a straight leg the current across the track and the h
 error are one unknown (a 0.6 m/s current across a boat at 2.5 m/s is a 14 deg crab), so a
 learner that took e for white noise would learn a current no data hold, and the main
 filter, told the course is good, would claim the crab as heading.  So the boat's learner
-carries e and d as states and measures the water velocity across the main filter's heading
-(:meth:`CourseLearner.step_lateral`).  e moves with every correction the main filter makes
-(a known shift), drifts at d, and grows with the scale error times the yaw turned; the
+carries e and d as states and measures the water velocity across its own heading,
+yaw - e_hat, which the main filter's corrections do not move
+(:meth:`CourseLearner.step_lateral`); a boat also learns its antenna's lever arm there.
+e moves with every correction the main filter makes (a known shift), drifts at d, and grows with the scale error times the yaw turned; the
 current separates from it only as the heading changes (a turn shows the crab changing).
 P_ee is then what course and gyro together say about the heading, and the main filter's yaw
 variance is never left below it (:meth:`CourseLearner.end_epoch`): the main filter takes the
