@@ -28,8 +28,9 @@ filter, told the course is good, would claim the crab as heading.  So the boat's
 carries e and d as states and measures the water velocity across its own heading,
 yaw - e_hat, which the main filter's corrections do not move
 (:meth:`CourseLearner.step_lateral`); a boat also learns its antenna's lever arm there.
-e moves with every correction the main filter makes (a known shift), drifts at d, and grows with the scale error times the yaw turned; the
-current separates from it only as the heading changes (a turn shows the crab changing).
+e moves with every correction the main filter makes (a known shift), drifts at d, and grows
+with the scale error times the yaw turned; the current separates from it only as the
+heading changes (a turn shows the crab changing).
 P_ee is then what course and gyro together say about the heading, and the main filter's yaw
 variance is never left below it (:meth:`CourseLearner.end_epoch`): the main filter takes the
 rest of the crab's uncertainty as white noise and would average it away on a straight leg.
