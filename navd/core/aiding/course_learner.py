@@ -187,8 +187,8 @@ class CourseLearner:
     def lever_row(self, mat_nb: Arr, rate_b: Arr, yaw: float) -> None:
         """The lever-arm part of this epoch's boat row: the lateral velocity n_hat . C (w x dl)
         = dl . (a x w), a = C^T n_hat the lateral direction in body axes; ``rate_b`` the
-        body rate (rad/s), ``yaw`` the row's heading (rad).  Zero for the next rows until
-        called again (:meth:`clear_lever_row`)."""
+        body rate (rad/s), ``yaw`` the main filter's heading (rad; the row's is yaw - e_hat).
+        Kept until the next call: a yaw set between epochs uses the last one."""
         psi_l = yaw - float(self.x[E])
         nn, ne = -math.sin(psi_l), math.cos(psi_l)
         a0 = mat_nb[0, 0] * nn + mat_nb[1, 0] * ne
@@ -199,9 +199,6 @@ class CourseLearner:
         hl[0] = a1 * w2 - a2 * w1
         hl[1] = a2 * w0 - a0 * w2
         hl[2] = a0 * w1 - a1 * w0
-
-    def clear_lever_row(self) -> None:
-        self._hl[:] = 0.0
 
     @property
     def lever(self) -> Arr:
