@@ -132,6 +132,13 @@ class Case:
 WIDE_SEEDS = 20
 
 
+# A consumer IMU (firmware_sim's consumer_mems: BMI088 noise, its own biases and scale
+# errors) read as rate samples behind a 20 Hz second-order low-pass, the vibration's
+# frequency wandering with a 3 s correlation (the throttle); the cases add the tone.
+VIB_BMI088: dict[str, Any] = {"imu.grade": "consumer_mems", "imu.vib_lpf_hz": 20.0,
+                              "imu.vib_freq_tau_s": 3.0}
+
+
 def _car_speeds(lo: float, hi: float) -> list[dict[str, float]]:
     """car480's speed events with every target squeezed into [lo, hi] m/s (same times)."""
     times = ((10.0, 15.0), (60.0, 10.0), (150.0, 12.0), (200.0, 12.0), (285.0, 12.0),
@@ -196,6 +203,25 @@ CASES: tuple[Case, ...] = (
     Case("boat_mast", "boat", "boat",
          "the boat's antenna on a 2.5 m mast 0.5 m forward, unstated; waves roll it 4 deg",
          overrides={"gnss.lever_arm_m": [0.5, 0.0, -2.5], "trajectory.sway_deg": 4.0}),
+    Case("vib_car", "car480", "ground",
+         "BMI088-class IMU read as 100 Hz rate samples (20 Hz low-pass); engine vibration "
+         "100 +- 3 Hz, 3/3/1.5 deg/s and 3/3/5 m/s^2, aliased to near DC",
+         overrides={**VIB_BMI088, "imu.vib_freq_hz": 100.0, "imu.vib_freq_sd_hz": 3.0,
+                    "imu.vib_gyro_rps": [3 * DEG, 3 * DEG, 1.5 * DEG],
+                    "imu.vib_accel_mps2": [3.0, 3.0, 5.0]}),
+    Case("vib_car_10dps", "car480", "ground",
+         "vib_car with 10/10/5 deg/s of angular vibration (a loose mount): 0.4 deg/s "
+         "wandering through DC",
+         overrides={**VIB_BMI088, "imu.vib_freq_hz": 100.0, "imu.vib_freq_sd_hz": 3.0,
+                    "imu.vib_gyro_rps": [10 * DEG, 10 * DEG, 5 * DEG],
+                    "imu.vib_accel_mps2": [3.0, 3.0, 5.0]}),
+    Case("vib_mr_50hz", "multirotor", "multirotor",
+         "multirotor, BMI088-class IMU read as 50 Hz rate samples (a log's IMU, 20 Hz "
+         "low-pass); rotors 150 +- 20 Hz, 10/10/5 deg/s and 5/5/10 m/s^2",
+         overrides={**VIB_BMI088, "imu.rate_hz": 50.0, "imu.vib_freq_hz": 150.0,
+                    "imu.vib_freq_sd_hz": 20.0,
+                    "imu.vib_gyro_rps": [10 * DEG, 10 * DEG, 5 * DEG],
+                    "imu.vib_accel_mps2": [5.0, 5.0, 10.0]}),
     Case("gyro_sf_1pct_mr", "multirotor", "multirotor",
          "multirotor, gyro scale-factor errors drawn at 1 % per axis",
          overrides={"imu.gyro_scale_factor_sigma_ppm": 10_000.0}),

@@ -272,6 +272,21 @@ class ImuSpec:
                                             "gyro bias random walk (starts at 0)")
     accel_bias_rw_mps2_per_sqrt_s: float = _f("m/s^2/sqrt(s)", 0.0,
                                               "accelerometer bias random walk (starts at 0)")
+    # Airframe vibration at the rotors' (or engine's) frequency, as a sensor that low-passes
+    # its output (second order, ``vib_lpf_hz``) and is read as point samples at ``rate_hz``
+    # sees it: a rate message (HIGHRES_IMU, RAW_IMU, a log's IMU), not a delta-angle IMU,
+    # whose integration would average the tone out.  The tone aliases to |f - k rate_hz|,
+    # to near DC whenever the frequency, which wanders with the throttle, crosses a multiple
+    # of the rate: a bias that comes and goes.  The real motion's samples are left as they
+    # are (the low-pass's delay on them is not modelled).
+    vib_freq_hz: float = _f("Hz", 0.0, "rotor frequency; 0 = no vibration")
+    vib_freq_sd_hz: float = _f("Hz", 0.0, "its wander, Gauss-Markov 1-sigma")
+    vib_freq_tau_s: float = _f("s", 5.0, "its wander's correlation time")
+    vib_lpf_hz: float = _f("Hz", 0.0, "the sensor's low-pass cut-off; 0 = none")
+    vib_gyro_rps: tuple[float, ...] = _f("rad/s", (0.0, 0.0, 0.0),
+                                         "peak angular-rate vibration x y z before the low-pass")
+    vib_accel_mps2: tuple[float, ...] = _f("m/s^2", (0.0, 0.0, 0.0),
+                                           "peak acceleration vibration x y z before the low-pass")
 
 
 @dataclass(frozen=True)
@@ -644,8 +659,11 @@ def _validate(sc: Scenario) -> None:
         _check(getattr(imu, name) >= 0.0, f"imu.{name}", "must be >= 0")
     for name in ("gyro_bias_rw_rps_per_sqrt_s", "accel_bias_rw_mps2_per_sqrt_s"):
         _check(getattr(imu, name) >= 0.0, f"imu.{name}", "must be >= 0")
-    for name in ("gyro_offset_rps", "accel_offset_mps2"):
+    for name in ("gyro_offset_rps", "accel_offset_mps2", "vib_gyro_rps", "vib_accel_mps2"):
         _check(len(getattr(imu, name)) == 3, f"imu.{name}", "needs 3 values (x, y, z)")
+    for name in ("vib_freq_hz", "vib_freq_sd_hz", "vib_lpf_hz"):
+        _check(getattr(imu, name) >= 0.0, f"imu.{name}", "must be >= 0 Hz")
+    _check(imu.vib_freq_tau_s > 0.0, "imu.vib_freq_tau_s", "must be > 0 s")
     for name in ("mount_roll_deg", "mount_pitch_deg", "mount_yaw_deg"):
         _check(abs(getattr(imu, name)) <= 180.0, f"imu.{name}", "must be in [-180, 180]")
     _check(imu.gyro_gm_tau_s > 0.0, "imu.gyro_gm_tau_s", "must be > 0 s")

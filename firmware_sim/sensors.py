@@ -11,7 +11,8 @@ first-order Gauss-Markov process (stationary sigma, time constant tau, discretis
 ``m[k+1] = e^(-dt/tau) m[k] + sigma sqrt(1 - e^(-2 dt/tau)) w``), ``r`` a bias random walk
 starting at 0 (``r[k+1] = r[k] + q sqrt(dt) w``, q in unit/sqrt(s)), and ``w`` unit white
 noise.  White noise is given as a density, so its per-increment sigma is
-``density * sqrt(dt)`` (ARW in rad/sqrt(s), VRW in m/s/sqrt(s)).
+``density * sqrt(dt)`` (ARW in rad/sqrt(s), VRW in m/s/sqrt(s)).  Airframe vibration, when
+the scenario has it, is added as the point samples of a low-passed tone (:func:`vibration`).
 
 GNSS: per-axis position noise (horizontal N/E, vertical D; white or Gauss-Markov), per-axis
 velocity noise (optionally larger than the reported accuracy), dropout windows, bursts of
@@ -51,6 +52,7 @@ STREAM_GNSS_VEL = 7
 STREAM_GNSS_JUMPS = 8
 STREAM_GYRO_RW = 9
 STREAM_ACCEL_RW = 10
+STREAM_VIBRATION = 11
 
 
 def _njit(fn: F) -> F:
@@ -123,6 +125,31 @@ class ImuErrors:
     accel_rw_mps2: Arr
 
 
+def vibration(n: int, dt_s: float, spec: ImuSpec, seed: int) -> Arr:
+    """The vibration in each of ``n`` samples (``ImuSpec.vib_*``).
+
+    Returns:
+        (n, 6) angular rate (rad/s) then acceleration (m/s^2), IMU axes: the tone after the
+        sensor's second-order low-pass, |H| = 1 / sqrt(1 + (f / f_c)^4), sampled at the end of
+        each interval.  One phase for all axes (one rotor), each axis at its own drawn offset.
+    """
+    amp = np.concatenate((np.asarray(spec.vib_gyro_rps, dtype=np.float64),
+                          np.asarray(spec.vib_accel_mps2, dtype=np.float64)))
+    if spec.vib_freq_hz == 0.0 or n == 0 or not np.any(amp):
+        return np.zeros((n, 6))
+    gen = rng(seed, STREAM_VIBRATION)
+    offset = gen.uniform(0.0, 2.0 * math.pi, 6)
+    freq = np.maximum(spec.vib_freq_hz + gauss_markov(gen, n, 1, spec.vib_freq_sd_hz,
+                                                      spec.vib_freq_tau_s, dt_s)[:, 0], 0.0)
+    # whole cycles dropped before the sine: the phase grows to ~1e6 cycles in an hour
+    cycles = np.cumsum(freq * dt_s)
+    theta = 2.0 * math.pi * (cycles - np.floor(cycles))
+    gain = (1.0 / np.sqrt(1.0 + (freq / spec.vib_lpf_hz) ** 4) if spec.vib_lpf_hz > 0.0
+            else np.ones(n))
+    out: Arr = (gain * np.sin(theta[:, None] + offset[None, :]).T).T * amp
+    return out
+
+
 def corrupt_imu(inc_true: Arr, dt_s: float, spec: ImuSpec, seed: int) -> tuple[Arr, ImuErrors]:
     """Apply the IMU error model to error-free increments.
 
@@ -165,6 +192,7 @@ def corrupt_imu(inc_true: Arr, dt_s: float, spec: ImuSpec, seed: int) -> tuple[A
                    + (spec.arw_rad_per_sqrt_s * sq) * wg)
     out[:, 3:6] = ((1.0 + sa) * inc_true[:, 3:6] + (ba + ma + ra) * dt_s
                    + (spec.vrw_mps_per_sqrt_s * sq) * wa)
+    out += vibration(n, dt_s, spec, seed) * dt_s
     return out, ImuErrors(bg, ba, sg, sa, mg, ma, rg, ra)
 
 

@@ -54,6 +54,12 @@ unexplained (:meth:`AdaptiveNoise._reopen_split`), since the tilt the drift buil
 already hidden in the bias.  Counted ``bias_q_up`` / ``bias_q_down`` /
 ``tilt_split_reopened``.
 
+The innovations miss a gyro error that wanders within seconds (aliased vibration): the tilt
+it builds goes into the accelerometer-bias estimate and the velocity stays right.  The
+gyro-bias estimates then move farther than their own covariance allows, which a chi-square
+test on their summed corrections over 30 s finds (``gyro_bias_corrections_high``; the walk
+steps up and is held there, see ``_CSLOTS``).
+
 Counted ``q_scale_up`` / ``q_scale_down`` / ``r_scale_up`` / ``r_scale_down``; the status
 record shows both scales.  A restart keeps them (it changes neither sensor).
 """
@@ -117,6 +123,23 @@ _MR_DOWN = 1.0  # ... the walk comes down only in a window with M below this (an
 _B_DOWN = 1.19  # ... and then by 2^(1/4): a consistent window is no proof the walk is too large
 _B_BIG = 256.0  # step on a non-zero mean: the 600x walk (variance 3.6e5) within 3 windows
 _B_STEP = 16.0  # a real drift (log171: ~720 deg/h in 2 min) needs a walk 1000x the prior's
+# The gyro-bias corrections' own consistency (_corrections_window).  For a consistent
+# filter with white innovations the summed correction d_i of gyro-bias axis i over a span
+# has variance V_i = sum (P- - P+)_ii, what the span's updates took off P; so
+# Z = sum_i d_i^2 / V_i over the last _CSLOTS windows (30 s at 10 Hz, tested at the end of
+# every window) is about chi-square(3).  Above _CZ_UP (p ~ 0.1 %) the walk steps up by
+# _B_STEP, above _CZ_BIG (p ~ 1e-8) by _B_BIG.  It sees what the innovations do not: a gyro
+# error that wanders within seconds (a rotor's vibration aliased to near DC in a rate
+# message, tenths of a deg/s that come and go) builds tilt that the accelerometer-bias
+# estimate absorbs, so the innovations stay white (car480, 10 deg/s of vibration at 100 +- 3
+# Hz read at 100 Hz, seed 1: median NIS ratio 1.0-1.6, rho and M as clean) while the bias estimates
+# move 2-10x farther than their covariance allows (mean d_i^2 / V_i over 30 s: 1.6 / 5.0 /
+# 10.8 on x / y / z; clean 0.6 / 1.0 / 0.4).  A high Z also sets a floor under the walk that
+# the 5-s windows' down steps cannot pass, lowered by _B_DOWN per consistent 30 s: white
+# innovations say nothing about this error, so only this test may take the walk back.
+_CSLOTS = 6
+_CZ_UP = 16.27
+_CZ_BIG = 40.0
 # state array: high count, epochs counted, Q scale, R scale, sums for the lag-1 correlation
 # of the horizontal velocity innovations (sum z_k z_k-1, sum z_k^2), the previous z (N, E),
 # gyro-bias walk scale, sums of z (N, E) and of the unexplained acceleration (N, E), and
@@ -154,6 +177,18 @@ class AdaptiveNoise:
         self._ve = np.zeros(3)  # scratch: variance of the specific-force error per NED axis
         self._accel_sd2 = imu.accel_bias_sd ** 2
         self._t = np.zeros(5)  # scratch: the direction _reopen_split widens
+        # the gyro-bias corrections: estimate and variance at the epoch's start; summed
+        # corrections and variance reductions of the window, its epochs; whether the last
+        # window was inconsistent (the walk then does not come down)
+        self._b0 = np.zeros(3)
+        self._p0 = np.zeros(3)
+        # per _WINDOW of epochs (a slot) the summed corrections and variance reductions, a
+        # ring of _CSLOTS slots; the open slot's epochs, the slots filled
+        self._cd = np.zeros((_CSLOTS, 3))
+        self._cv = np.zeros((_CSLOTS, 3))
+        self._cn = 0
+        self._cfill = 0
+        self._bfloor = 1.0  # the walk scale the corrections' test holds it at, at least
 
     @property
     def scale(self) -> float:
@@ -178,6 +213,7 @@ class AdaptiveNoise:
     def reset(self) -> None:
         """Start the window over; the scales are kept (a restart changes neither sensor)."""
         self._clear()
+        self._clear_corrections()
         self._s[_MHIT] = 0.0
         self._known = False
         self._dwell = 0
@@ -186,6 +222,64 @@ class AdaptiveNoise:
         s = self._s
         s[_HIGH] = s[_N] = s[_SZZ] = s[_SZ2] = s[_SN] = s[_SE] = s[_AN] = s[_AE] = 0.0
         s[_PN] = math.nan
+
+    def _clear_corrections(self) -> None:
+        for k in range(_CSLOTS):
+            for i in range(3):
+                self._cd[k, i] = self._cv[k, i] = 0.0
+        self._cn = 0
+        self._cfill = 0
+
+    def before_epoch(self, est: Estimator) -> None:
+        """Call once per GNSS epoch before its updates: the gyro-bias estimate and variance
+        they start from."""
+        for i in range(3):
+            self._b0[i] = est.bias_g[i]
+            self._p0[i] = est.P[9 + i, 9 + i]
+
+    def _corrections_window(self, est: Estimator) -> None:
+        """Add this epoch's gyro-bias corrections; every _WINDOW epochs test the last
+        _CSLOTS windows' sum and step the walk up if the corrections moved more than their
+        covariance allows (see _CSLOTS)."""
+        P = est.P
+        for i in range(3):
+            if P[9 + i, 9 + i] > self._p0[i]:
+                # widened within the epoch (a reset, the split reopened): no longer one filter
+                self._clear_corrections()
+                return
+        slot = self._cfill % _CSLOTS
+        for i in range(3):
+            self._cd[slot, i] += est.bias_g[i] - self._b0[i]
+            self._cv[slot, i] += self._p0[i] - P[9 + i, 9 + i]
+        self._cn += 1
+        if self._cn < _WINDOW:
+            return
+        self._cn = 0
+        self._cfill += 1
+        zsum = 0.0
+        for i in range(3):
+            d = v = 0.0
+            for k in range(min(self._cfill, _CSLOTS)):
+                d += self._cd[k, i]
+                v += self._cv[k, i]
+            if v > 0.0:
+                zsum += d * d / v
+        nxt = self._cfill % _CSLOTS
+        for i in range(3):
+            self._cd[nxt, i] = self._cv[nxt, i] = 0.0
+        s = self._s
+        if zsum > _CZ_UP:
+            est.counters["gyro_bias_corrections_high"] += 1
+            if s[_BSCALE] < self.max_bias_scale:
+                step = _B_BIG if zsum > _CZ_BIG else _B_STEP
+                s[_BSCALE] = min(s[_BSCALE] * step, self.max_bias_scale)
+                est.counters["bias_q_up"] += 1
+                self._apply(est)
+            self._bfloor = float(s[_BSCALE])
+            # the evidence is spent: the next test starts afresh
+            self._clear_corrections()
+        elif self._cfill % _CSLOTS == 0:
+            self._bfloor = max(self._bfloor / _B_DOWN, 1.0)
 
     def _median_ratio(self) -> float:
         """The window's median NIS ratio, sorted in preallocated scratch (np.median copies:
@@ -275,12 +369,14 @@ class AdaptiveNoise:
         self._t_prev = est.t_us
         if not self._settled(est):
             self._clear()
+            self._clear_corrections()
             self._s[_MHIT] = 0.0
             self._dwell = 0
             return
         if self._dwell < _WINDOW:  # the first window after settling: skipped (module doc)
             self._dwell += 1
             return
+        self._corrections_window(est)
         m = (3 if vel_d_reported else 2) + (1 if r[INNOV_COURSE, INNOV_FLAG] == ACCEPTED
                                             and flag == ACCEPTED else 0)
         s = self._s
@@ -319,8 +415,8 @@ class AdaptiveNoise:
             self._apply(est)
             if mean_held:
                 self._reopen_split(est, a_n, a_e)
-        elif rho < _RHO_DOWN and mr < _MR_DOWN and s[_BSCALE] > 1.0:
-            s[_BSCALE] = max(s[_BSCALE] / _B_DOWN, 1.0)
+        elif rho < _RHO_DOWN and mr < _MR_DOWN and s[_BSCALE] > self._bfloor:
+            s[_BSCALE] = max(s[_BSCALE] / _B_DOWN, self._bfloor)
             est.counters["bias_q_down"] += 1
             self._apply(est)
         if z > _Z_UP:

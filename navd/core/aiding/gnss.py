@@ -189,6 +189,7 @@ class GnssAiding:
         m_nb = est.mat_nb
         yaw0 = math.atan2(m_nb[1, 0], m_nb[0, 0])
         self.course.begin_epoch(g.t_us * 1e-6, yaw0)
+        self.adaptive.before_epoch(est)
         bg = est.bias_g
         rate0 = m_nb[2, 0] * bg[0] + m_nb[2, 1] * bg[1] + m_nb[2, 2] * bg[2]
         if c.gnss.use_position:
