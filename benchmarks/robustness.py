@@ -139,6 +139,14 @@ VIB_BMI088: dict[str, Any] = {"imu.grade": "consumer_mems", "imu.vib_lpf_hz": 20
                               "imu.vib_freq_tau_s": 3.0}
 
 
+def _vib_car(dps: float) -> dict[str, Any]:
+    """car480 read as 100 Hz samples with its engine at 100 +- 3 Hz (the alias always near
+    DC): ``dps`` deg/s of angular vibration about x and y (half about z), 3/3/5 m/s^2."""
+    return {**VIB_BMI088, "imu.vib_freq_hz": 100.0, "imu.vib_freq_sd_hz": 3.0,
+            "imu.vib_gyro_rps": [dps * DEG, dps * DEG, 0.5 * dps * DEG],
+            "imu.vib_accel_mps2": [3.0, 3.0, 5.0]}
+
+
 def _car_speeds(lo: float, hi: float) -> list[dict[str, float]]:
     """car480's speed events with every target squeezed into [lo, hi] m/s (same times)."""
     times = ((10.0, 15.0), (60.0, 10.0), (150.0, 12.0), (200.0, 12.0), (285.0, 12.0),
@@ -206,15 +214,11 @@ CASES: tuple[Case, ...] = (
     Case("vib_car", "car480", "ground",
          "BMI088-class IMU read as 100 Hz rate samples (20 Hz low-pass); engine vibration "
          "100 +- 3 Hz, 3/3/1.5 deg/s and 3/3/5 m/s^2, aliased to near DC",
-         overrides={**VIB_BMI088, "imu.vib_freq_hz": 100.0, "imu.vib_freq_sd_hz": 3.0,
-                    "imu.vib_gyro_rps": [3 * DEG, 3 * DEG, 1.5 * DEG],
-                    "imu.vib_accel_mps2": [3.0, 3.0, 5.0]}),
+         overrides=_vib_car(3.0)),
     Case("vib_car_10dps", "car480", "ground",
          "vib_car with 10/10/5 deg/s of angular vibration (a loose mount): 0.4 deg/s "
          "wandering through DC",
-         overrides={**VIB_BMI088, "imu.vib_freq_hz": 100.0, "imu.vib_freq_sd_hz": 3.0,
-                    "imu.vib_gyro_rps": [10 * DEG, 10 * DEG, 5 * DEG],
-                    "imu.vib_accel_mps2": [3.0, 3.0, 5.0]}),
+         overrides=_vib_car(10.0)),
     Case("vib_mr_50hz", "multirotor", "multirotor",
          "multirotor, BMI088-class IMU read as 50 Hz rate samples (a log's IMU, 20 Hz "
          "low-pass); rotors 150 +- 20 Hz, 10/10/5 deg/s and 5/5/10 m/s^2",
