@@ -544,3 +544,25 @@ def test_daemon_warns_once_when_the_autopilot_is_a_boat_and_navd_runs_a_car(
         if warned:
             assert 'profile = "boat"' in said[0] and "SURFACE_BOAT" in said[0], said
         d._close()
+
+
+def test_an_adaptive_counter_says_what_it_means_a_refusal_names_itself() -> None:
+    """GIVEN the estimator counters the daemon warns about when they grow,
+    THEN an adaptive or diagnostic one (course_not_heading, gyro_bias_corrections_high) is
+    followed by what it means and what to do, a refusal (vel_rejected) is its name alone, and
+    every counter with words is one the estimator really counts (a misspelt key would never
+    be explained)."""
+    import re
+
+    from navd.daemon.daemon import _EST_WORDS, counter_warning
+
+    line = counter_warning("course_not_heading", 1, 1)
+    assert line.startswith("estimator: course_not_heading +1 (total 1): ")
+    assert 'profile = "boat"' in line
+    assert "vibration" in counter_warning("gyro_bias_corrections_high", 2, 5)
+    assert counter_warning("vel_rejected", 3, 7) == "estimator: vel_rejected +3 (total 7)"
+    src = "".join(p.read_text() for p in (ROOT / "navd" / "core").rglob("*.py"))
+    # every quoted name inside counters[...], also those picked by an expression
+    counted = {w for e in re.findall(r"counters\[([^\]]+)\]", src)
+               for w in re.findall(r'"(\w+)"', e)}
+    assert set(_EST_WORDS) <= counted, set(_EST_WORDS) - counted

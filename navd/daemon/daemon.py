@@ -72,7 +72,7 @@ from navd.io.zenoh import ZenohPublisher, attitude_key, status_key
 from navd.pipeline import build_estimator, output_instant
 from navd.types import GnssSample, ImuSample, NavSolution
 
-__all__ = ["Daemon", "StartupError", "explain_open_error", "warm_up"]
+__all__ = ["Daemon", "StartupError", "counter_warning", "explain_open_error", "warm_up"]
 
 _log = logging.getLogger("navd")
 
@@ -92,6 +92,30 @@ _CLOCK_WORDS = {
     "clock_dropped": "held samples of a clock that did not go on, dropped",
     "clock_out_of_range": "time stamps outside (0, 2**53) us, refused",
 }
+
+
+# What the estimator's adaptive and diagnostic counters mean, for the operator's log line
+# (the refusals name themselves: "vel_rejected", "gnss_absurd_jump").
+_EST_WORDS = {
+    "course_not_heading": "the GNSS course keeps leaving the heading as a water current or a "
+                          "crab would: on a boat run [filter] profile = \"boat\"",
+    "gyro_bias_corrections_high": "the gyro-bias estimates moved more than their covariance "
+                                  "allows (a gyro error wandering within seconds, e.g. "
+                                  "vibration aliased into rate samples): bias walk raised",
+    "bias_q_up": "the velocity innovations persist: gyro-bias random walk raised",
+    "tilt_split_reopened": "a tilt error hidden in the accelerometer bias is suspected: "
+                           "both widened",
+    "q_scale_up": "the IMU is noisier than configured: its noise densities raised",
+    "r_scale_up": "the GNSS velocity is noisier than the receiver reports: its sigma raised",
+}
+
+
+def counter_warning(name: str, grew: int, total: int) -> str:
+    """The log line for an estimator counter that grew: its name, the growth, the total and,
+    for the adaptive and diagnostic counters, what it means."""
+    words = _EST_WORDS.get(name)
+    line = f"estimator: {name} +{grew} (total {total})"
+    return f"{line}: {words}" if words else line
 
 
 def _is_refusal(counter: str) -> bool:
@@ -689,7 +713,7 @@ class Daemon:
             for name, n in now_counts.items():
                 grew = n - seen.get(name, 0)
                 if grew > 0 and _is_refusal(name):
-                    self.rlog.warn(f"est_{name}", "estimator: %s +%d (total %d)", name, grew, n)
+                    self.rlog.warn(f"est_{name}", "%s", counter_warning(name, grew, n))
             seen = now_counts
             self._check_vehicle()
             clock = dict(self.clock_guard.counters)
