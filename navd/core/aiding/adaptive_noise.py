@@ -131,15 +131,15 @@ _B_STEP = 16.0  # a real drift (log171: ~720 deg/h in 2 min) needs a walk 1000x 
 # _B_STEP, above _CZ_BIG (p ~ 1e-8) by _B_BIG.  It sees what the innovations do not: a gyro
 # error that wanders within seconds (a rotor's vibration aliased to near DC in a rate
 # message, tenths of a deg/s that come and go) builds tilt that the accelerometer-bias
-# estimate absorbs, so the innovations stay white (car480, 10 deg/s of vibration at 100 +- 3
-# Hz read at 100 Hz, seed 1: median NIS ratio 1.0-1.6, rho and M as clean) while the bias estimates
-# move 2-10x farther than their covariance allows (mean d_i^2 / V_i over 30 s: 1.6 / 5.0 /
-# 10.8 on x / y / z; clean 0.6 / 1.0 / 0.4).  The tilt it built is what the accelerometer-
-# bias estimate absorbed: a high Z reopens the split by that estimate's summed correction
-# over the span (the drifting gyro kept 3-5 deg of roll hidden without it: docs/results.md,
-# "Aliased vibration").  A high Z also sets a floor under the walk that
-# the 5-s windows' down steps cannot pass, lowered by _B_DOWN per consistent 30 s: white
-# innovations say nothing about this error, so only this test may take the walk back.
+# estimate absorbs, so the innovations stay white (car480, 10 deg/s of vibration at
+# 100 +- 3 Hz read at 100 Hz, seed 1: median NIS ratio 1.0-1.6, rho and M as clean) while
+# the bias estimates move 2-10x farther than their covariance allows (mean d_i^2 / V_i over
+# 30 s: 1.6 / 5.0 / 10.8 on x / y / z; clean 0.6 / 1.0 / 0.4).  The tilt it built is what
+# the accelerometer-bias estimate absorbed: a high Z reopens the split by that estimate's
+# summed correction over the span (the drifting gyro kept 3-5 deg of roll hidden without
+# it: docs/results.md, "Aliased vibration").  A high Z also sets a floor under the walk
+# that the 5-s windows' down steps cannot pass, lowered by _B_DOWN per consistent 30 s:
+# white innovations say nothing about this error, so only this test may take the walk back.
 _CSLOTS = 6
 _CZ_UP = 16.27
 _CZ_BIG = 40.0
@@ -180,10 +180,8 @@ class AdaptiveNoise:
         self._ve = np.zeros(3)  # scratch: variance of the specific-force error per NED axis
         self._accel_sd2 = imu.accel_bias_sd ** 2
         self._t = np.zeros(5)  # scratch: the direction _reopen_split widens
-        # the gyro-bias corrections: estimate and variance at the epoch's start; summed
-        # corrections and variance reductions of the window, its epochs; whether the last
-        # window was inconsistent (the walk then does not come down)
-        self._b0 = np.zeros(6)  # gyro then accelerometer bias
+        # the biases at the epoch's start (gyro then accelerometer) and the gyro-bias variance
+        self._b0 = np.zeros(6)
         self._p0 = np.zeros(3)
         # per _WINDOW of epochs (a slot) the summed corrections and variance reductions, a
         # ring of _CSLOTS slots; the open slot's epochs, the slots filled
@@ -193,6 +191,7 @@ class AdaptiveNoise:
         self._cfill = 0
         self._dsum = np.zeros(3)  # scratch: the span's accelerometer-bias corrections, body
         self._bfloor = 1.0  # the walk scale the corrections' test holds it at, at least
+        self._zlast = math.nan  # the last test's Z (status)
 
     @property
     def scale(self) -> float:
@@ -203,6 +202,12 @@ class AdaptiveNoise:
     def bias_scale(self) -> float:
         """Present variance scale of the gyro-bias random walk (1 = as configured)."""
         return float(self._s[_BSCALE])
+
+    @property
+    def corrections_z(self) -> float:
+        """The gyro-bias corrections' last Z over its span (about chi-square(3) for a
+        consistent filter; NaN before the first test), see ``_CSLOTS``."""
+        return self._zlast
 
     @property
     def r_scale(self) -> float:
@@ -279,6 +284,7 @@ class AdaptiveNoise:
         nxt = self._cfill % _CSLOTS
         for i in range(3):
             self._cd[nxt, i] = self._cd[nxt, 3 + i] = self._cv[nxt, i] = 0.0
+        self._zlast = zsum
         s = self._s
         if zsum > _CZ_UP:
             est.counters["gyro_bias_corrections_high"] += 1

@@ -133,6 +133,11 @@ class GnssAiding:
             "r_scale": self.adaptive.r_scale,
             # ... and of the gyro-bias random walk
             "bias_q_scale": self.adaptive.bias_scale,
+            # the gyro-bias corrections' chi-square(3) statistic over its last 30 s (about 3
+            # when consistent; above 16.3 the walk is raised); None before the first
+            "gyro_bias_corrections_z": (round(self.adaptive.corrections_z, 2)
+                                        if math.isfinite(self.adaptive.corrections_z)
+                                        else None),
             # the IMU's white noise measured from its samples, as a variance over the
             # configured (gyro, accelerometer; >= 1: a floor under the scale above)
             "imu_noise_floor": [round(est.imu_noise.gyro_floor, 3),
