@@ -146,7 +146,7 @@ def vibration(n: int, dt_s: float, spec: ImuSpec, seed: int) -> Arr:
     theta = 2.0 * math.pi * (cycles - np.floor(cycles))
     gain = (1.0 / np.sqrt(1.0 + (freq / spec.vib_lpf_hz) ** 4) if spec.vib_lpf_hz > 0.0
             else np.ones(n))
-    out: Arr = (gain * np.sin(theta[:, None] + offset[None, :]).T).T * amp
+    out: Arr = gain[:, None] * np.sin(theta[:, None] + offset) * amp
     return out
 
 
