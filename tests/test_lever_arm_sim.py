@@ -9,12 +9,15 @@ model, given the right lever arm, takes the effect out.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
+import pytest
 from bench_util import load_benchmark
 
 from firmware_sim import generate, load_scenario
+from navd.core.aiding import adaptive_noise
 
 rb = load_benchmark("robustness")
 
@@ -60,20 +63,25 @@ def test_lever_arm_configured_or_uncertain_keeps_the_antenna_motion_out() -> Non
     assert max(b_out, k_out, d_out, t_out) <= 0.05, (b_out, k_out, d_out, t_out)
 
 
-def test_car_with_an_unmeasured_roof_antenna_keeps_heading_sigma_honest() -> None:
+def test_car_with_an_unmeasured_roof_antenna_keeps_heading_sigma_honest(
+        monkeypatch: pytest.MonkeyPatch) -> None:
     """GIVEN car480 (seeds 1-3) whose antenna is 1 m behind, 0.3 m right of and 1.2 m above
     the IMU (benchmarks/robustness.py's lever_1.6m case), the lever arm not configured,
     WHEN it runs with the default config, with the lever-arm allowance alone (the gyro
     scale-factor allowance off, ``imu.gyro_scale_sd_pct=0``: it widens the heading sigma in
     turns too), and with neither (the control: the lever arm of zero trusted,
-    ``gnss.lever_arm_sd_m=0``),
+    ``gnss.lever_arm_sd_m=0``), each with the course innovations' test off (it raises the
+    gyro noise on the persistence the lever arm leaves, so it would cover the control too:
+    this test measures the allowance),
     THEN pooled over the seeds the aligned heading is beyond 3 sigma in at most 5 % of
     instants (issue 14's target) in the first two, where the control exceeds it: in a turn
     the antenna's course differs from the IMU's by (w x l) / v, which the control takes for
     heading.
 
     Measured: default 0.0 %, lever-arm allowance alone 3.4 % (seeds 1-3: 3.1 / 2.7 /
-    4.5 %), control 6.4 % (5.4 / 6.1 / 7.9 %)."""
+    4.5 %), control 6.4 % (5.4 / 6.1 / 7.9 %); with max_q_scale 100 (2026-11-28 f) 0.3 /
+    3.4 / 6.3 %, and the control with the course test on 3.6 %."""
+    monkeypatch.setattr(adaptive_noise, "_CM_UP", math.inf)
     share = []
     for config in ((), ("imu.gyro_scale_sd_pct=0",),
                    ("gnss.lever_arm_sd_m=0", "imu.gyro_scale_sd_pct=0")):

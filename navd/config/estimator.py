@@ -31,9 +31,13 @@ class FilterSection:
     # state, not the receiver, is wrong; reset it to GNSS (0 = never)
     max_lockout: float = _f(5.0, "s")
     # scale the IMU white noise (ARW, VRW) online when the GNSS velocity innovations say it
-    # is understated, up to max_q_scale times its variance (navd/core/aiding/adaptive_noise.py)
+    # is understated (the gyro's also when the course innovations persist), up to
+    # max_q_scale times its variance (navd/core/aiding/adaptive_noise.py).  100: 10x the
+    # density, 5 deg/sqrt(h) for the consumer grade, what a loose mount's aliased vibration
+    # integrates to (3-6 deg/sqrt(h) Allan-equivalent, docs/results.md "Aliased vibration as
+    # gyro noise"); 25 left a car with 10 deg/s of it 5 % beyond 3 sigma in pitch
     adaptive_noise: bool = _f(True)
-    max_q_scale: float = _f(25.0)
+    max_q_scale: float = _f(100.0)
     # measure the IMU's white noise from its own samples (second differences, motion refused
     # by a whiteness check) and never propagate with less than that, up to max_q_scale
     # (navd/core/aiding/imu_noise.py)

@@ -106,6 +106,9 @@ _EST_WORDS = {
     "tilt_split_reopened": "a tilt error hidden in the accelerometer bias is suspected: "
                            "both widened",
     "q_scale_up": "the IMU is noisier than configured: its noise densities raised",
+    "gyro_noise_up": "the GNSS course keeps its sign for seconds against the heading: the "
+                     "gyro is noisier than configured where the filter integrates it (e.g. "
+                     "vibration aliased into rate samples): its noise density raised",
     "r_scale_up": "the GNSS velocity is noisier than the receiver reports: its sigma raised",
 }
 

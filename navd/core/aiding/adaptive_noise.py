@@ -58,7 +58,9 @@ The innovations miss a gyro error that wanders within seconds (aliased vibration
 it builds goes into the accelerometer-bias estimate and the velocity stays right.  The
 gyro-bias estimates then move farther than their own covariance allows, which a chi-square
 test on their summed corrections over 30 s finds (``gyro_bias_corrections_high``; the walk
-steps up and is held there, see ``_CSLOTS``).
+steps up and is held there, see ``_CSLOTS``).  On a vehicle whose course is heading the
+same error shows sooner in the course innovations, which keep their sign for seconds: the
+gyro's white noise and its bias walk step up (``gyro_noise_up``, see ``_CM_UP``).
 
 Counted ``q_scale_up`` / ``q_scale_down`` / ``r_scale_up`` / ``r_scale_down``; the status
 record shows both scales.  A restart keeps them (it changes neither sensor).
@@ -143,6 +145,24 @@ _B_STEP = 16.0  # a real drift (log171: ~720 deg/h in 2 min) needs a walk 1000x 
 _CSLOTS = 6
 _CZ_UP = 16.27
 _CZ_BIG = 40.0
+# The course innovations' own persistence (_course_window).  Gyro noise the configuration
+# does not state but the filter integrates as white noise (a rotor's or engine's vibration
+# aliased to within a few Hz of DC in a rate message: ~3 deg/sqrt(h) equivalent from 0.3 to
+# 30 s, Allan deviation, for 5 deg/s of it about z at 100 +- 3 Hz read at 100 Hz; the consumer
+# preset says 0.5) moves the yaw between course fixes, and the filter, believing its yaw
+# within 0.05 deg, takes seconds to follow: the course innovations keep a sign for seconds.
+# Neither the IMU's own samples (the measured floor refuses noise that grows with the
+# averaging time as motion, imu_noise.py) nor the velocity innovations (the tilt it builds
+# goes into the accelerometer-bias estimate) see it.  Per _WINDOW accepted course rows the
+# normalised innovations w = z / sqrt(S) give M = (sum w)^2 / sum w^2, chi-square(1) for
+# white ones: above _CM_UP the gyro's white-noise variance is scaled by _G_UP (never past
+# [filter] max_q_scale with the other scales), below _CM_DOWN it comes down by _B_DOWN.
+# The same noise on x and y is what the tilt needs (car480 with 10 / 10 / 5 deg/s of it: a
+# configured ARW of 3 deg/sqrt(h) gives 0.8 / 2.0 / 0.4 % beyond 3 sigma, 0.5 gives 4 / 2 /
+# 7 %), so the scale is the gyro's, not the yaw's alone.
+_CM_UP = 6.63
+_CM_DOWN = 0.1
+_G_UP = 4.0
 # state array: high count, epochs counted, Q scale, R scale, sums for the lag-1 correlation
 # of the horizontal velocity innovations (sum z_k z_k-1, sum z_k^2), the previous z (N, E),
 # gyro-bias walk scale, sums of z (N, E) and of the unexplained acceleration (N, E), and
@@ -192,6 +212,7 @@ class AdaptiveNoise:
         self._dsum = np.zeros(3)  # scratch: the span's accelerometer-bias corrections, body
         self._bfloor = 1.0  # the walk scale the corrections' test holds it at, at least
         self._zlast = math.nan  # the last test's Z (status)
+        self._cw = np.zeros(3)  # the course window: sum w, sum w^2, rows (_course_window)
 
     @property
     def scale(self) -> float:
@@ -223,6 +244,7 @@ class AdaptiveNoise:
         """Start the window over; the scales are kept (a restart changes neither sensor)."""
         self._clear()
         self._clear_corrections()
+        self._cw.fill(0.0)
         self._s[_MHIT] = 0.0
         self._known = False
         self._dwell = 0
@@ -306,6 +328,44 @@ class AdaptiveNoise:
             self._clear_corrections()
         elif self._cfill % _CSLOTS == 0:
             self._bfloor = max(self._bfloor / _B_DOWN, 1.0)
+
+    def _course_window(self, est: Estimator) -> None:
+        """Add this epoch's course innovation if its row was applied; every _WINDOW of them
+        test their mean and step the gyro's white-noise scale (see _CM_UP)."""
+        rec = est.innov[INNOV_COURSE]
+        nis = rec[INNOV_NIS]
+        if rec[INNOV_FLAG] != ACCEPTED or not nis > 0.0 or not math.isfinite(nis):
+            return
+        cw = self._cw
+        w = math.copysign(math.sqrt(nis), rec[0])
+        cw[0] += w
+        cw[1] += w * w
+        cw[2] += 1.0
+        if cw[2] < _WINDOW:
+            return
+        m = cw[0] * cw[0] / cw[1]
+        cw[0] = cw[1] = cw[2] = 0.0
+        noise = est.imu_noise
+        g = noise.gyro_scale
+        if m > _CM_UP:
+            s = self._s
+            if s[_BSCALE] < self.max_bias_scale:
+                # a yaw that keeps leaving its course is also what a gyro bias drifting
+                # faster than its walk makes (the 600x drifting gyro fires this ~20 s before
+                # the bias tests): the walk steps as for a persistent velocity innovation
+                s[_BSCALE] = min(s[_BSCALE] * _B_STEP, self.max_bias_scale)
+                est.counters["bias_q_up"] += 1
+                self._apply(est)
+            if g >= self.max_scale:
+                return
+            g = min(g * _G_UP, self.max_scale)
+            est.counters["gyro_noise_up"] += 1
+        elif m < _CM_DOWN and g > 1.0:
+            g = max(g / _B_DOWN, 1.0)
+            est.counters["gyro_noise_down"] += 1
+        else:
+            return
+        noise.set_gyro_scale(g, est.buf[st.Q:st.Q + 15])
 
     def _median_ratio(self) -> float:
         """The window's median NIS ratio, sorted in preallocated scratch (np.median copies:
@@ -393,6 +453,8 @@ class AdaptiveNoise:
         if self._t_prev >= 0:
             self._fix_dt = min(max((est.t_us - self._t_prev) * 1e-6, 0.01), 1.0)
         self._t_prev = est.t_us
+        if self.max_scale > 1.0:
+            self._course_window(est)
         if not self._settled(est):
             self._clear()
             self._clear_corrections()

@@ -131,6 +131,8 @@ class GnssAiding:
             "q_scale": self.adaptive.scale,
             # ... and of the GNSS velocity accuracy
             "r_scale": self.adaptive.r_scale,
+            # ... and of the gyro's white noise alone, from the course innovations' persistence
+            "gyro_q_scale": est.imu_noise.gyro_scale,
             # ... and of the gyro-bias random walk
             "bias_q_scale": self.adaptive.bias_scale,
             # the gyro-bias corrections' chi-square(3) statistic over its last 30 s (about 3

@@ -80,7 +80,8 @@ Q0G, Q0A, CAP, ON = SCALE + 1, SCALE + 2, SCALE + 3, SCALE + 4
 PT = SCALE + 5  # the previous sample's stamp, us
 SORT = SCALE + 6  # scratch for a ring's median (RING)
 RATES = SORT + RING  # scratch: the sample's rates (gyro xyz, accel xyz)
-SIZE = RATES + 6
+GSCALE = RATES + 6  # the course test's variance scale on the gyro alone (adaptive_noise)
+SIZE = GSCALE + 1
 
 
 @jit
@@ -102,10 +103,11 @@ def _ring_median(na: Arr, ring: int, n: int) -> float:
 @jit
 def noise_apply(na: Arr, q: Arr) -> None:
     """Write the white-noise densities into ``q`` (the propagation's 15 densities):
-    ``min(floor * scale, cap) * configured`` for the gyro (0-2) and the accelerometer (3-5)."""
+    ``min(floor * scale, cap) * configured`` for the gyro (0-2; its scale times the course
+    test's gyro scale) and the accelerometer (3-5)."""
     s = na[SCALE]
     cap = na[CAP]
-    vg = min(na[FLOOR_G] * s, cap) * na[Q0G]  # floors stay 1 while switched off
+    vg = min(na[FLOOR_G] * s * na[GSCALE], cap) * na[Q0G]  # floors stay 1 while switched off
     va = min(na[FLOOR_A] * s, cap) * na[Q0A]
     q[0] = vg
     q[1] = vg
@@ -254,7 +256,7 @@ class ImuNoise:
         ``cap``: the largest variance scale (``[filter] max_q_scale``)."""
         self.acc = np.zeros(SIZE)
         a = self.acc
-        a[FLOOR_G] = a[FLOOR_A] = a[SCALE] = 1.0
+        a[FLOOR_G] = a[FLOOR_A] = a[SCALE] = a[GSCALE] = 1.0
         # the rings start full of the configured value: the floor rises only once most of
         # the last RING accepted windows say so (one wild window, a crash, moves nothing)
         for k in range(2):
@@ -283,6 +285,16 @@ class ImuNoise:
         """The innovation test's variance scale changed: write the densities into ``q``."""
         self.acc[SCALE] = scale
         noise_apply(self.acc, q)
+
+    def set_gyro_scale(self, scale: float, q: Arr) -> None:
+        """The course test's gyro variance scale changed: write the densities into ``q``."""
+        self.acc[GSCALE] = scale
+        noise_apply(self.acc, q)
+
+    @property
+    def gyro_scale(self) -> float:
+        """The course test's variance scale on the gyro white noise (1 = none)."""
+        return float(self.acc[GSCALE])
 
     @property
     def gyro_floor(self) -> float:
