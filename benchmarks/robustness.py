@@ -251,6 +251,11 @@ CASES: tuple[Case, ...] = (
          "sideslip2", {"trajectory.sideslip_gain_rad_per_mps2": 2.0 * DEG}),
     Case("sideslip_4", "car480", "ground", "sideslip 4 deg per m/s^2 of lateral accel",
          overrides={"trajectory.sideslip_gain_rad_per_mps2": 4.0 * DEG}),
+    Case("slip_wander_1", "car480", "ground",
+         "a sideslip of its own, 1 deg RMS wandering with a 2-s correlation (loose ground, "
+         "skid steering): not a function of the turn",
+         overrides={"trajectory.slip_wander_rad": 1.0 * DEG,
+                    "trajectory.slip_wander_tau_s": 2.0}),
     Case("slow_2-4", "car480", "ground", "car480's route at 2-4 m/s (starts at 3 m/s)",
          overrides={"trajectory.speed0_mps": 3.0, "trajectory.speed": _car_speeds(2.0, 4.0)}),
     Case("gnss_vel_x3", "car480", "ground",

@@ -29,6 +29,7 @@ from firmware_sim.scenario import (
     TrajectorySpec,
     TurnEvent,
 )
+from firmware_sim.sensors import STREAM_SLIP, rng
 from navd.core.earth import gravity
 from navd.units import ARCSEC, DEG
 
@@ -111,13 +112,33 @@ def static_profile(t: Arr, spec: StaticSpec) -> Profile:
     return Profile(euler, np.zeros((n, 3)))
 
 
-def ground_profile(t: Arr, spec: GroundSpec) -> Profile:
+# cosines summed into a wandering sideslip
+SLIP_TONES = 16
+
+
+def slip_wander(t: Arr, sigma_rad: float, tau_s: float, seed: int) -> Arr:
+    """A smooth random sideslip (N,), rad: ``SLIP_TONES`` cosines with uniform phases and
+    frequencies drawn from N(0, 1 / (2 pi tau)), each of amplitude sigma sqrt(2 / K), so its
+    variance is sigma^2 and its autocorrelation exp(-dt^2 / (2 tau^2)).  Smooth (unlike a
+    Gauss-Markov path), so the lateral acceleration it makes, v d(beta)/dt, stays finite."""
+    if sigma_rad == 0.0:
+        return np.zeros_like(t)
+    gen = rng(seed, STREAM_SLIP)
+    f = gen.normal(0.0, 1.0 / (2.0 * np.pi * tau_s), SLIP_TONES)
+    ph = gen.uniform(0.0, 2.0 * np.pi, SLIP_TONES)
+    out: Arr = sigma_rad * np.sqrt(2.0 / SLIP_TONES) * np.cos(
+        2.0 * np.pi * t[:, None] * f + ph).sum(axis=1)
+    return out
+
+
+def ground_profile(t: Arr, spec: GroundSpec, seed: int = 0) -> Profile:
     """Ground vehicle: the velocity lies along body x unless sideslip is enabled.
 
     Body roll follows the lateral (centripetal) acceleration ``a_lat = v_h * yaw_rate``
     (positive to the right): ``roll = roll_gain * a_lat`` (a negative gain leans the car out
     of the turn, as a real car does).  Sideslip ``beta = sideslip_gain * a_lat`` turns the
-    velocity away from body x, so GNSS course = yaw + beta.  A water current adds to the
+    velocity away from body x, so GNSS course = yaw + beta; ``slip_wander_rad`` adds a
+    sideslip of its own (:func:`slip_wander`, drawn from ``seed``).  A water current adds to the
     horizontal velocity (a boat's crab); sway adds wave roll and pitch (:class:`GroundSpec`).
     """
     speed, _ = targets(t, spec.speed0_mps, _abs_targets(spec.speed, 1.0))
@@ -128,6 +149,8 @@ def ground_profile(t: Arr, spec: GroundSpec) -> Profile:
     a_lat = v_h * yaw_rate
     roll = spec.roll_gain_rad_per_mps2 * a_lat
     course = yaw + spec.sideslip_gain_rad_per_mps2 * a_lat
+    if spec.slip_wander_rad > 0.0:
+        course = course + slip_wander(t, spec.slip_wander_rad, spec.slip_wander_tau_s, seed)
     vel = np.stack([v_h * np.cos(course) + spec.current_n_mps,
                     v_h * np.sin(course) + spec.current_e_mps, -speed * np.sin(pitch)], axis=1)
     if spec.sway_deg > 0.0:
@@ -256,10 +279,11 @@ def ship_profile(t: Arr, spec: ShipSpec) -> Profile:
     return Profile(np.stack([roll, pitch, yaw], axis=1), vel)
 
 
-def build_profile(t: Arr, spec: TrajectorySpec) -> Profile:
-    """Dispatch on the trajectory kind.  ``t``: (N,) seconds from the start."""
+def build_profile(t: Arr, spec: TrajectorySpec, seed: int = 0) -> Profile:
+    """Dispatch on the trajectory kind.  ``t``: (N,) seconds from the start; ``seed``: the
+    run's (the only random part of a trajectory is a ground vehicle's wandering slip)."""
     if isinstance(spec, GroundSpec):
-        return ground_profile(t, spec)
+        return ground_profile(t, spec, seed)
     if isinstance(spec, MultirotorSpec):
         return multirotor_profile(t, spec)
     if isinstance(spec, ShipSpec):

@@ -24,11 +24,8 @@ from firmware_sim.scenario import (
     TurnEvent,
     VelEvent,
 )
-from firmware_sim.sensors import rng
+from firmware_sim.sensors import STREAM_RANDOMIZE, rng
 from navd.units import DEG
-
-#: random stream of the scenario variant (never renumber: sensors.py owns 1..10)
-STREAM_RANDOMIZE = 11
 
 
 def _sym(gen: np.random.Generator, half_width: float) -> float:

@@ -196,7 +196,7 @@ def generate(scenario: Scenario, seed: int, progress: bool = False) -> SimRun:
         t_us = T0_US + dt_us * np.arange(n + 1, dtype=np.int64)
         t_s = (t_us - T0_US).astype(np.float64) * 1e-6
         tr = scenario.trajectory
-        prof = build_profile(t_s, tr)
+        prof = build_profile(t_s, tr, seed)
         dov = dov_profile(t_s, scenario.dov)
         bar.update()
         bar.set_postfix_str(stages[1])

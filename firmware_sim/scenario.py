@@ -150,6 +150,9 @@ class GroundSpec(_Where):
     grade: tuple[TargetEvent, ...] = _f("deg (pitch targets)", ())
     roll_gain_rad_per_mps2: float = _f("rad/(m/s^2)", 0.0)
     sideslip_gain_rad_per_mps2: float = _f("rad/(m/s^2)", 0.0)
+    slip_wander_rad: float = _f("rad", 0.0, "1-sigma of a sideslip that wanders on its own "
+                                "(loose ground, skid steering), smooth, drawn per seed")
+    slip_wander_tau_s: float = _f("s", 2.0, "its correlation time (Gaussian-shaped)")
     current_n_mps: float = _f("m/s", 0.0)
     current_e_mps: float = _f("m/s", 0.0)
     sway_deg: float = _f("deg", 0.0)

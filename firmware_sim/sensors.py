@@ -52,7 +52,11 @@ STREAM_GNSS_VEL = 7
 STREAM_GNSS_JUMPS = 8
 STREAM_GYRO_RW = 9
 STREAM_ACCEL_RW = 10
-STREAM_VIBRATION = 11
+STREAM_RANDOMIZE = 11  # the scenario's [randomize] variant (firmware_sim/randomize.py)
+# 12, not 11: the vibration first drew from the randomize stream, so on a randomized scenario
+# its phases were the variant's own draws (every stream is listed here, one number each)
+STREAM_VIBRATION = 12
+STREAM_SLIP = 13  # a ground vehicle's wandering sideslip (firmware_sim/profiles.py)
 
 
 def _njit(fn: F) -> F:

@@ -106,3 +106,15 @@ def test_a_negative_frequency_is_refused() -> None:
 
     with pytest.raises(ValueError, match=r"imu\.vib_freq_hz"):
         load_scenario("multirotor", {"imu.vib_freq_hz": -1.0})
+
+
+def test_every_random_stream_has_its_own_number() -> None:
+    """GIVEN the simulator's random streams (firmware_sim.sensors.STREAM_*, the randomize
+    stream included),
+    THEN no two share a number: two components drawing from one stream would be the same
+    draws, not independent ones (the vibration once drew from the randomize stream)."""
+    import firmware_sim.sensors as sensors
+
+    streams = {k: v for k, v in vars(sensors).items() if k.startswith("STREAM_")}
+    assert len(streams) >= 12, streams
+    assert len(set(streams.values())) == len(streams), streams

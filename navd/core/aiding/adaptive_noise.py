@@ -72,6 +72,7 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
 
 from navd.config import EstimatorConfig
 from navd.core import state as st
@@ -156,18 +157,30 @@ _CZ_BIG = 40.0
 # goes into the accelerometer-bias estimate) see it.  Per _WINDOW accepted course rows the
 # normalised innovations w = z / sqrt(S) give M = (sum w)^2 / sum w^2, chi-square(1) for
 # white ones: above _CM_UP the gyro's white-noise variance is scaled by _G_UP (never past
-# [filter] max_q_scale with the other scales), below _CM_DOWN it comes down by _B_DOWN.
+# [filter] max_q_scale with the other scales) and the gyro-bias walk by _B_STEP; it comes
+# down by _B_DOWN only when the mean M of _CSLOTS windows in a row (30 s) is below _CM_DOWN
+# (then the next 30 s must say so again).  Coming down on one low window (M < 0.1, p 25 %
+# when the noise is right) settled the scale where the noise was still understated:
+# vib_car_10dps went up and down 20-40 times a run, tilt beyond 3 sigma 6.6 % (3.7 % now).
 # The same noise on x and y is what the tilt needs (car480 with 10 / 10 / 5 deg/s of it: a
 # configured ARW of 3 deg/sqrt(h) gives 0.8 / 2.0 / 0.4 % beyond 3 sigma, 0.5 gives 4 / 2 /
 # 7 %), so the scale is the gyro's, not the yaw's alone.
 _CM_UP = 6.63
-_CM_DOWN = 0.1
-_G_UP = 4.0
+_CM_DOWN = 0.5
+_G_UP = 16.0
 # state array: high count, epochs counted, Q scale, R scale, sums for the lag-1 correlation
 # of the horizontal velocity innovations (sum z_k z_k-1, sum z_k^2), the previous z (N, E),
 # gyro-bias walk scale, sums of z (N, E) and of the unexplained acceleration (N, E), and
 # whether the previous window's mean ratio was above _MR_UP
 _HIGH, _N, _SCALE, _RSCALE, _SZZ, _SZ2, _PN, _PE, _BSCALE, _SN, _SE, _AN, _AE, _MHIT = range(14)
+
+
+def _ring_sum(r: npt.NDArray[np.float64]) -> float:
+    """Sum of a small ring in scalars (a GNSS epoch creates no arrays)."""
+    t = 0.0
+    for i in range(r.shape[0]):
+        t += float(r[i])
+    return t
 
 
 class AdaptiveNoise:
@@ -213,6 +226,8 @@ class AdaptiveNoise:
         self._bfloor = 1.0  # the walk scale the corrections' test holds it at, at least
         self._zlast = math.nan  # the last test's Z (status)
         self._cw = np.zeros(3)  # the course window: sum w, sum w^2, rows (_course_window)
+        self._cm = np.zeros(_CSLOTS)  # the last windows' M (_course_window), a ring
+        self._cmn = 0  # windows in the ring since it was last cleared
 
     @property
     def scale(self) -> float:
@@ -245,6 +260,7 @@ class AdaptiveNoise:
         self._clear()
         self._clear_corrections()
         self._cw.fill(0.0)
+        self._cmn = 0
         self._s[_MHIT] = 0.0
         self._known = False
         self._dwell = 0
@@ -345,9 +361,13 @@ class AdaptiveNoise:
             return
         m = cw[0] * cw[0] / cw[1]
         cw[0] = cw[1] = cw[2] = 0.0
+        cm = self._cm
+        cm[self._cmn % _CSLOTS] = m
+        self._cmn += 1
         noise = est.imu_noise
         g = noise.gyro_scale
         if m > _CM_UP:
+            self._cmn = 0  # the ring's evidence for coming down starts over
             s = self._s
             if s[_BSCALE] < self.max_bias_scale:
                 # a yaw that keeps leaving its course is also what a gyro bias drifting
@@ -360,7 +380,8 @@ class AdaptiveNoise:
                 return
             g = min(g * _G_UP, self.max_scale)
             est.counters["gyro_noise_up"] += 1
-        elif m < _CM_DOWN and g > 1.0:
+        elif self._cmn >= _CSLOTS and g > 1.0 and _ring_sum(cm) < _CM_DOWN * _CSLOTS:
+            self._cmn = 0
             g = max(g / _B_DOWN, 1.0)
             est.counters["gyro_noise_down"] += 1
         else:
