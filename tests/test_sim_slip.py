@@ -36,8 +36,9 @@ def test_the_wander_has_its_sigma_its_correlation_and_is_smooth() -> None:
     """GIVEN slip_wander(sigma 1 deg, tau 2 s) over 2000 s on seeds 1-20,
     THEN pooled its RMS is 1 deg within 15 % and its correlation at lag tau is exp(-1/2)
     within 0.15 (the Gaussian shape the tones' frequencies are drawn for); its rate stays
-    below a few deg/s (a smooth path: a Gauss-Markov one at 100 Hz would jump ~20x
-    further per sample); seeds differ, a seed repeats."""
+    below 5 deg/s (a smooth path: a Gauss-Markov one of the same sigma and tau steps
+    sigma sqrt(2 dt / tau) = 0.1 deg per 10-ms sample, 10 deg/s); seeds differ, a seed
+    repeats."""
     t = np.arange(0.0, 2000.0, 0.01)
     lag = 200
     rms, corr = [], []
