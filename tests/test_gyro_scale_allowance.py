@@ -130,7 +130,10 @@ def test_car_with_uncalibrated_gyro_scale_keeps_its_heading_within_3_sigma() -> 
     THEN the aligned heading is beyond 3 sigma in <= 5 % of the pooled instants (measured
     0.1 %; 2.7 % with the allowance alone, before the course learnt the z scale), and with
     the allowance and the learning off (``imu.gyro_scale_sd_pct=0``) in > 10 % (measured
-    21 %: the sigma stayed ~0.1 deg through turns that put 0.8 deg into the heading)."""
+    21 %: the sigma stayed ~0.1 deg through turns that put 0.8 deg into the heading).  Both
+    runs with the course-noise test off (``heading.adapt_course_noise=false``): it sees the
+    heading error a scale error leaves correlated over turns too and takes the control to
+    10.0 % on its own (docs/results.md, 2026-12-01), so it would blur what this measures."""
     case = next(c for c in rb.CASES if c.name == "gyro_sf_1pct")
     runs = [generate(load_scenario(case.scenario, dict(case.overrides)), seed=s,
                      progress=False) for s in range(1, 6)]
@@ -144,9 +147,9 @@ def test_car_with_uncalibrated_gyro_scale_keeps_its_heading_within_3_sigma() -> 
             n += int(m.sum())
         return 100.0 * hit / n
 
-    on = exceed(())
+    on = exceed(("heading.adapt_course_noise=false",))
     assert on <= 5.0, on
-    off = exceed(("imu.gyro_scale_sd_pct=0",))
+    off = exceed(("imu.gyro_scale_sd_pct=0", "heading.adapt_course_noise=false"))
     assert off > 10.0, off
 
 

@@ -223,6 +223,10 @@ class HeadingSection:
     # heading (GnssAiding._heading_hold in navd/core/aiding/gnss.py says why)
     hold_static: bool = _f(True)
     hold_max_speed: float = _f(0.3, "mps")
+    # a slip of the course's own (loose ground, skid steering), correlated over seconds:
+    # the course rows' variance scaled by the course against the gyro alone
+    # (navd/core/aiding/course_noise.py); ground profile
+    adapt_course_noise: bool = _f(True)
 
     def validate(self) -> None:
         check(self.current_sd >= 0.0, "heading", "current_sd_mps", ">= 0 (m/s)")

@@ -110,6 +110,9 @@ _EST_WORDS = {
                      "gyro is noisier than configured where the filter integrates it (e.g. "
                      "vibration aliased into rate samples): its noise density raised",
     "r_scale_up": "the GNSS velocity is noisier than the receiver reports: its sigma raised",
+    "course_noise_up": "the GNSS course wanders against the gyro-integrated heading for "
+                       "seconds (a slip of its own: loose ground, skid steering): the course "
+                       "rows' variance raised",
 }
 
 

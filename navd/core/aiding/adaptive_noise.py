@@ -362,6 +362,15 @@ class AdaptiveNoise:
             return
         m = cw[0] * cw[0] / cw[1]
         cw[0] = cw[1] = cw[2] = 0.0
+        if est.gnss.course.noise.scale > 1.0:
+            # the course against the gyro alone says the course carries a slip of its own
+            # (course_noise.py): its persistence is not the gyro's (a raise it made before
+            # the slip was sized is taken back), and the rows already carry its variance
+            self._cmn = 0
+            if est.imu_noise.gyro_scale > 1.0:
+                est.imu_noise.set_gyro_scale(1.0, est.buf[st.Q:st.Q + 15])
+                est.counters["gyro_noise_down"] += 1
+            return
         cm = self._cm
         cm[self._cmn % _CSLOTS] = m
         self._cmn += 1

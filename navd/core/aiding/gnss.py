@@ -135,6 +135,9 @@ class GnssAiding:
             "gyro_q_scale": est.imu_noise.gyro_scale,
             # ... and of the gyro-bias random walk
             "bias_q_scale": self.adaptive.bias_scale,
+            # factor on the GNSS course rows' variance: a slip of the course's own sized
+            # against the gyro alone (1: the course is what the rows model)
+            "course_noise_scale": round(self.course.noise.scale, 2),
             # the gyro-bias corrections' chi-square(3) statistic over its last 30 s (about 3
             # when consistent; above 16.3 the walk is raised); None before the first
             "gyro_bias_corrections_z": (round(self.adaptive.corrections_z, 2)

@@ -40,6 +40,7 @@ from navd.core.aiding.base import (
     SINGULAR,
 )
 from navd.core.aiding.course_learner import CourseLearner, K, S
+from navd.core.aiding.course_noise import CourseNoise
 from navd.core.aiding.heading_alignment import HeadingAlignment
 from navd.core.chi2 import chi2_quantile
 from navd.core.kalman import SF_SCALE_Z, SF_YAW_Z
@@ -169,9 +170,16 @@ class CourseHeading:
         self.watch = (CourseLearner(cfg, watch=True)
                       if self.enabled and c.filter.profile == "ground"
                       and c.heading.current_sd > 0.0 else None)
+        # a slip of the course's own, correlated over seconds: the rows' variance scaled by
+        # what the course against the gyro alone says (course_noise.py); cars only (a boat's
+        # learner carries its heading error, a plane's crab is the yaw bank's)
+        self.noise = CourseNoise(self.enabled and c.filter.profile == "ground"
+                                 and c.heading.adapt_course_noise)
         # when the heading may be flagged aligned (not on one sample)
         self.align = HeadingAlignment(cfg)
         self._told = [False]  # course_not_heading counted (once per run)
+        # the course-noise scale was on at its last test; the scale the yaw variance saw
+        self._noise_on = [False, 1.0]
         self._wv = np.zeros(2)  # the epoch's velocity through the water, m/s (_learn_epoch)
 
     @property
@@ -193,11 +201,15 @@ class CourseHeading:
         self.rejects = 0
         self.align.reset()
         self.learn.reset()
+        self.noise.reset()
+        self._noise_on[0] = False
+        self._noise_on[1] = 1.0
         if self.watch is not None:
             self.watch.reset()
 
     # the yaw's life cycle, told to the learner (and the watch): course_learner.py
     def yaw_known(self, p22: float, yaw: float, t_s: float, rate_var: float) -> None:
+        self.noise.restart_chain()
         self.learn.yaw_known(p22, yaw, t_s, rate_var)
         if self.watch is not None:
             self.watch.yaw_known(p22, yaw, t_s, rate_var)
@@ -206,6 +218,7 @@ class CourseHeading:
                 t_s: float, rate_var: float) -> float:
         """The yaw was set to the course of (wn, we) (through the water by the learnt
         current); returns the yaw variance for the main filter."""
+        self.noise.restart_chain()
         if self.watch is not None:
             w = self.watch
             w_n, w_e = w.water(*self.learn.ground(wn, we))
@@ -213,17 +226,20 @@ class CourseHeading:
         return self.learn.yaw_set(p22, a_lat, yaw, wn, we, t_s, rate_var)
 
     def widen(self, var: float) -> None:
+        self.noise.restart_chain()
         self.learn.widen(var)
         if self.watch is not None:
             self.watch.widen(var)
 
     def begin_epoch(self, t_s: float, yaw: float) -> None:
+        self.noise.begin_epoch(yaw)
         self.learn.begin_epoch(t_s, yaw)
         if self.watch is not None:
             self.watch.begin_epoch(t_s, yaw)
 
     def end_epoch(self, est: Estimator, P: Arr, d_yaw: float, yaw: float,
                   d_rate: float) -> None:
+        self.noise.end_epoch(d_yaw)
         self.learn.end_epoch(P, d_yaw, yaw, d_rate)
         w = self.watch
         if w is not None:
@@ -384,7 +400,13 @@ class CourseHeading:
         d = float(lrn.x[K]) * a_lat
         cd, sd_ = math.cos(d), math.sin(d)
         vn_c, ve_c = cd * vn_c + sd_ * ve_c, -sd_ * vn_c + cd * ve_c
-        sd_beta = math.sqrt(self.sd_beta * self.sd_beta + self._course_var(est, a_lat))
+        sd_b2 = self.sd_beta * self.sd_beta + self._course_var(est, a_lat)
+        # the row's white variance as modelled, and what the course's own correlated slip
+        # adds beyond it (course_noise.py; the speed part is the GNSS velocity's, shared
+        # with rows 0-2, so the extra goes into the sideslip term)
+        r_white = s_sd * s_sd / max(vn_c * vn_c + ve_c * ve_c, 1e-6) + sd_b2
+        extra = (self.noise.scale - 1.0) * r_white
+        sd_beta = math.sqrt(sd_b2 + extra)
         # course alone first: its own gate decides whether it joins the velocity update
         st.course_row(est.buf, 3, vn_c, ve_c, s_sd, sd_beta)
         if swapped:
@@ -395,6 +417,10 @@ class CourseHeading:
         sc -= 2.0 * (H[3, 0] * P[0, 2] + H[3, 1] * P[1, 2])
         sc += est.meas_R[3, 3]  # the course's own noise: speed, sideslip, lever arm
         course_ok = (not self._gating) or zc * zc / sc <= self._gate1
+        m_nb = est.mat_nb
+        if self.noise.row(g.t_us * 1e-6, zc, r_white, sc, math.atan2(m_nb[1, 0], m_nb[0, 0]),
+                          float(est.buf[st.Q + 2])):
+            self._noise_changed(est)
         self._learn_epoch(est, g, zc, sc, a_lat, float(est.meas_R[3, 3])
                           - (sd_beta * sd_beta - self.sd_beta * self.sd_beta))
         rec = est.innov[INNOV_COURSE]
@@ -420,6 +446,29 @@ class CourseHeading:
             # persistently inconsistent: the yaw is wrong beyond the linear model; reset it
             self.align_yaw(est, vn_c, ve_c, s_sd)
             cnt["heading_reset"] += 1
+
+    def _noise_changed(self, est: Estimator) -> None:
+        """A course-noise test ended (course_noise.py): count the scale switching on or off;
+        when it rose, the yaw's variance rises with it.  The rows before had given the yaw
+        the information of a course that many times less noisy, which the yaw sigma still
+        claims (a slip found 45 s in left the yaw 1-2 deg off at sigma 0.15 deg); row and
+        column 2 of P are scaled by sqrt(f) each (P stays positive definite, the correlations
+        are kept), the variance never beyond the heading prior's."""
+        lam = self.noise.scale
+        on = lam > 1.0
+        if on != self._noise_on[0]:
+            self._noise_on[0] = on
+            est.counters["course_noise_up" if on else "course_noise_down"] += 1
+        f = lam / self._noise_on[1]
+        self._noise_on[1] = lam
+        P = est.P
+        cap = self.cfg.init.heading_sd * self.cfg.init.heading_sd
+        if f > 1.0 and P[2, 2] > 0.0:
+            f = min(f, max(cap / float(P[2, 2]), 1.0))
+            r = math.sqrt(f)
+            for j in range(15):
+                P[2, j] *= r
+                P[j, 2] *= r
 
     def note_not_tried(self, est: Estimator, g: GnssSample) -> None:
         """Course record before the epoch's updates (``Estimator.push`` has marked it not
