@@ -178,8 +178,6 @@ class CourseHeading:
         # when the heading may be flagged aligned (not on one sample)
         self.align = HeadingAlignment(cfg)
         self._told = [False]  # course_not_heading counted (once per run)
-        # the course-noise scale was on at its last test; the scale the yaw variance saw
-        self._noise_on = [False, 1.0]
         self._wv = np.zeros(2)  # the epoch's velocity through the water, m/s (_learn_epoch)
 
     @property
@@ -202,8 +200,6 @@ class CourseHeading:
         self.align.reset()
         self.learn.reset()
         self.noise.reset()
-        self._noise_on[0] = False
-        self._noise_on[1] = 1.0
         if self.watch is not None:
             self.watch.reset()
 
@@ -454,13 +450,10 @@ class CourseHeading:
         claims (a slip found 45 s in left the yaw 1-2 deg off at sigma 0.15 deg); row and
         column 2 of P are scaled by sqrt(f) each (P stays positive definite, the correlations
         are kept), the variance never beyond the heading prior's."""
-        lam = self.noise.scale
-        on = lam > 1.0
-        if on != self._noise_on[0]:
-            self._noise_on[0] = on
-            est.counters["course_noise_up" if on else "course_noise_down"] += 1
-        f = lam / self._noise_on[1]
-        self._noise_on[1] = lam
+        sw = self.noise.switched
+        if sw:
+            est.counters["course_noise_up" if sw > 0 else "course_noise_down"] += 1
+        f = self.noise.rise
         P = est.P
         cap = self.cfg.init.heading_sd * self.cfg.init.heading_sd
         if f > 1.0 and P[2, 2] > 0.0:
