@@ -16,7 +16,14 @@ import pytest
 from bench_util import load_benchmark
 
 from firmware_sim import generate, load_scenario
-from navd.core.aiding.course_noise import MAX_GAP_S, T_BLOCK, CourseNoise
+from navd.core.aiding.course_noise import (
+    MAX_GAP_S,
+    MIN_TESTS,
+    T_BLOCK,
+    U_FIRST,
+    U_PRIOR,
+    CourseNoise,
+)
 from navd.units import DEG
 
 DT = 0.1  # 10 Hz course rows
@@ -151,7 +158,8 @@ def test_one_glitch_row_does_not_switch_the_scale_on() -> None:
     cn = CourseNoise(True)
     for k, x in enumerate(d):
         cn.row(k * DT, float(x), r, r, 0.0, 0.0)
-        assert cn.scale == 1.0
+        if cn.tests:  # before the first test the prior holds (test below)
+            assert cn.scale == 1.0
     wide = CourseNoise(True)
     most = 1.0
     for k, x in enumerate(d):
@@ -185,7 +193,115 @@ def test_disabled_or_bad_rows_do_nothing() -> None:
         assert not cn.row(k * DT, math.nan, 1e-4, 1e-4, 0.0, 0.0)
         assert not cn.row(k * DT, 0.1, 0.0, 1e-4, 0.0, 0.0)
         assert not cn.row(k * DT, 0.1, 1e-4, -1.0, 0.0, 0.0)
-    assert cn.scale == 1.0 and cn.tests == 0
+    assert cn.scale == U_PRIOR and cn.tests == 0
+    assert off.scale == 1.0
+
+
+def test_the_prior_holds_until_the_first_test_and_white_rows_drop_it() -> None:
+    """GIVEN a fresh instance, THEN the course rows' scale is the prior (a slip not yet
+    ruled out) until the first test ends; white rows then drop it to 1 without counting a
+    switch (the prior is not the test switching on); reset() brings the prior back, a
+    chain restart (a yaw set) does not."""
+    gen = np.random.default_rng(6)
+    r = (0.45 * DEG) ** 2
+    cn = CourseNoise(True)
+    assert cn.scale == U_PRIOR > 1.0
+    k = 0
+    while not cn.row(k * DT, float(gen.normal(0.0, math.sqrt(r))), r, 100.0 * r, 0.0, 0.0):
+        assert cn.scale == U_PRIOR
+        k += 1
+    assert k * DT == pytest.approx(3.0 * T_BLOCK, abs=0.5)  # three blocks of rows
+    assert cn.scale == 1.0 and cn.switched == 0
+    cn.restart_chain()
+    assert cn.scale == 1.0
+    cn.reset()
+    assert cn.scale == U_PRIOR
+
+
+def test_an_overwhelming_slip_switches_on_at_the_first_test_white_noise_does_not() -> None:
+    """GIVEN 40 fresh starts of the AR(1) slip (1 deg, 2 s) on white rows, THEN at least 60 %
+    switch the scale on at their first test and 90 % within MIN_TESTS (the mean of four
+    before deciding left 15 s more of a yaw that follows the slip).  GIVEN 300 fresh starts
+    of white rows, THEN none switches on in its first MIN_TESTS tests (where the bound is
+    1 + U_FIRST / n, a chi-square tail of ~1e-7)."""
+    gen = np.random.default_rng(7)
+    r = (0.45 * DEG) ** 2
+    n_rows = (MIN_TESTS + 2) * N_BLK + 1
+    first = []
+    for _ in range(40):
+        d = gen.normal(0.0, math.sqrt(r), n_rows) + ar1(n_rows, DEG, 2.0, gen)
+        cn = CourseNoise(True)
+        for k, x in enumerate(d):
+            if cn.row(k * DT, float(x), r, 1.0, 0.0, 0.0) and cn.switched == 1:
+                first.append(cn.tests)
+                assert cn.scale > U_FIRST
+                break
+    # u is lambda chi-square(1) with lambda ~ 10^2: a small draw now and then needs a
+    # second or third test (seed 7: 27 of 40 at the first, 39 within the first four)
+    assert len(first) >= 36, first
+    assert first.count(1) >= 24, first
+    for _ in range(300):
+        w = CourseNoise(True)
+        for k, x in enumerate(gen.normal(0.0, math.sqrt(r), n_rows)):
+            if w.row(k * DT, float(x), r, 100.0 * r, 0.0, 0.0):
+                assert w.scale == 1.0
+
+
+def test_a_bias_estimate_that_moves_is_not_taken_for_slip() -> None:
+    """GIVEN a still heading, white course noise, and a filter whose yaw integrates a gyro
+    bias estimate that jumps every 7 s (0.2 deg/s RMS: the start of a drive, the bias being
+    learnt), its yaw psi_hat = -int b_hat dt moved by no correction,
+    THEN told the bias (b_down), the test's mean u is 1 within 20 % and the scale stays 1;
+    not told, the bent yaw looks like a slip (mean u above 10)."""
+    gen = np.random.default_rng(8)
+    r = (0.45 * DEG) ** 2
+    n = 36_000
+    chi = gen.normal(0.0, math.sqrt(r), n)
+    steps = gen.normal(0.0, 0.2 * DEG, n // 70 + 1)
+    told, blind = CourseNoise(True), CourseNoise(True)
+    mt, mb = [], []
+    psi = 0.0
+    for k in range(n):
+        b = float(steps[k // 70])
+        for cn, bd, out in ((told, b, mt), (blind, 0.0, mb)):
+            cn.begin_epoch(psi)
+            if cn.row(k * DT, psi - chi[k], r, 100.0 * r, psi, 0.0, b_down=bd):
+                out.append(cn.mean_u)
+            cn.end_epoch(0.0)
+        psi -= b * DT
+    assert abs(float(np.nanmean(mt[10:])) - 1.0) < 0.2
+    assert told.scale == 1.0
+    assert float(np.nanmean(mb[10:])) > 10.0
+
+
+def test_a_gyro_scale_the_learner_does_not_know_yet_is_not_taken_for_slip() -> None:
+    """GIVEN a car that turns 90 deg over 10 s every 30 s with a z gyro 3 % off, white course
+    noise, and the slip learner's covariance saying the scale is unknown to 3 %,
+    THEN told that covariance (p_learn) the test's mean u stays below 3 and the scale 1; not
+    told, the turns' scale error looks like a slip (mean u above 10)."""
+    gen = np.random.default_rng(9)
+    r = (0.45 * DEG) ** 2
+    n = 36_000
+    t = np.arange(n) * DT
+    phase = t % 30.0
+    rate = np.where(phase < 10.0, 9.0 * DEG, 0.0) * np.where((t // 30.0) % 2 == 0, 1.0, -1.0)
+    yaw_true = np.cumsum(rate) * DT
+    psi = yaw_true * 1.03  # what the filter integrates
+    chi = yaw_true + gen.normal(0.0, math.sqrt(r), n)
+    p_learn = np.diag([(0.5 * DEG) ** 2, 0.03**2])
+    told, blind = CourseNoise(True), CourseNoise(True)
+    mt, mb = [], []
+    for k in range(n):
+        y = float((psi[k] + math.pi) % (2.0 * math.pi) - math.pi)
+        zc = float((psi[k] - chi[k] + math.pi) % (2.0 * math.pi) - math.pi)
+        for cn, pl, out in ((told, p_learn, mt), (blind, None, mb)):
+            cn.begin_epoch(y)
+            if cn.row(float(t[k]), zc, r, 100.0 * r, y, 0.0, 0.0, pl):
+                out.append(cn.mean_u)
+            cn.end_epoch(0.0)
+    assert float(np.nanmean(mt[10:])) < 3.0
+    assert told.scale == 1.0
+    assert float(np.nanmean(mb[10:])) > 10.0
 
 
 # ---- the estimator against simulator truth -----------------------------------------------

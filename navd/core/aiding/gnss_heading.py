@@ -415,7 +415,9 @@ class CourseHeading:
         course_ok = (not self._gating) or zc * zc / sc <= self._gate1
         m_nb = est.mat_nb
         if self.noise.row(g.t_us * 1e-6, zc, r_white, sc, math.atan2(m_nb[1, 0], m_nb[0, 0]),
-                          float(est.buf[st.Q + 2])):
+                          float(est.buf[st.Q + 2]), a_lat, lrn.P,
+                          m_nb[2, 0] * est.bias_g[0] + m_nb[2, 1] * est.bias_g[1]
+                          + m_nb[2, 2] * est.bias_g[2], float(est.gyro_sf[SF_SCALE_Z])):
             self._noise_changed(est)
         self._learn_epoch(est, g, zc, sc, a_lat, float(est.meas_R[3, 3])
                           - (sd_beta * sd_beta - self.sd_beta * self.sd_beta))
