@@ -31,8 +31,9 @@ foreign car) 4.4-5.4, the wandering slip 60-550 (its smallest and largest).
 When that mean passes ``U_ON`` the course rows' variance is scaled by it (never below 1,
 until it falls under ``U_OFF``): the filter then averages the course over minutes, which is
 what a slip with a long-run variance lambda r needs, and the gyro carries the yaw between.
-Until the first test ends the scale is a prior, ``U_PRIOR``; the first tests may switch it
-on alone when overwhelming (``U_FIRST``); once on it is the mean's upper bound, not the mean.
+Until the first test ends the scale is a prior, ``U_PRIOR`` (shipped 1); the first tests
+may switch it on alone when overwhelming (``U_FIRST``); once on it is an upper bound of
+the mean, not the mean (``U_UPPER``).
 
 Two things bend the gyro-integrated heading that are not slip, and the test takes them out:
 the filter's gyro bias and z scale estimates change while the chain runs (fastest at the
@@ -76,14 +77,16 @@ U_OFF = 1.5
 # above ~30: chi-square's tail ~1e-7 for one to three tests); the wandering slip's first
 # test is in the hundreds, and waiting for four left 15 s more of a yaw that followed it
 U_FIRST = 29.0
-# the scale until the first test ends (~15 s of course rows after the yaw is set): a slip
-# of its own is not yet ruled out.  slip_wander_1 heading beyond 3 sigma with 1 / 10 / 30:
-# 4.0 / 2.4 / 3.2 %; car480 clean heading 0.055 / 0.058 / 0.060 deg, roll 0.432 / 0.459 /
-# 0.464 deg (docs/results.md)
-U_PRIOR = 10.0
-# when on, the scale is the mean's excess times (1 + U_UPPER sqrt(U_VAR / n)): the mean of
-# 24 scatters by ~40 % of itself, and a scale drawn low left the yaw beyond 3 sigma for
-# seconds at a time (slip_wander_1 seed 3: scale 20-50 where its seeds 1-2 give 100-250)
+# the scale until the first test ends (~15 s of course rows after the yaw is set), for a
+# slip not yet ruled out.  Shipped 1 (none): 10 took slip_wander_1 from 4.1 to 2.4 % beyond
+# 3 sigma, but cost car480 0.027 deg of roll and, with the IMU noise 3x the config's, a
+# velocity lock-out reset in tests/test_adaptive_noise.py (docs/results.md)
+U_PRIOR = 1.0
+# when on, the scale is the mean's excess times (1 + U_UPPER sqrt(U_VAR / N_TESTS)): the
+# mean of 24 scatters by ~40 % of itself, and a scale drawn low left the yaw beyond 3 sigma
+# for seconds (slip_wander_1 seed 3: 20-50 where seeds 1-2 give 100-250); the factor of a
+# full ring even when fewer tests are in it (sqrt(U_VAR / n) at n = 4 tripled a receiver's
+# understated noise into the IMU noise scale)
 U_UPPER = 2.0
 # a row this far (chi-square(1), 4.9 sigma of the scaled variance) out of the blocks
 ROW_GATE = 24.0
@@ -290,4 +293,4 @@ class CourseNoise:
             v[_ON] = 1.0
         elif c < U_OFF:
             v[_ON] = 0.0
-        v[_SCALE] = c * (1.0 + U_UPPER * math.sqrt(U_VAR / n)) if v[_ON] else 1.0
+        v[_SCALE] = c * (1.0 + U_UPPER * math.sqrt(U_VAR / N_TESTS)) if v[_ON] else 1.0
