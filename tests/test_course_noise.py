@@ -21,7 +21,6 @@ from navd.core.aiding.course_noise import (
     MIN_TESTS,
     T_BLOCK,
     U_FIRST,
-    U_PRIOR,
     CourseNoise,
 )
 from navd.units import DEG
@@ -158,8 +157,7 @@ def test_one_glitch_row_does_not_switch_the_scale_on() -> None:
     cn = CourseNoise(True)
     for k, x in enumerate(d):
         cn.row(k * DT, float(x), r, r, 0.0, 0.0)
-        if cn.tests:  # before the first test the prior holds (test below)
-            assert cn.scale == 1.0
+        assert cn.scale == 1.0
     wide = CourseNoise(True)
     most = 1.0
     for k, x in enumerate(d):
@@ -193,32 +191,7 @@ def test_disabled_or_bad_rows_do_nothing() -> None:
         assert not cn.row(k * DT, math.nan, 1e-4, 1e-4, 0.0, 0.0)
         assert not cn.row(k * DT, 0.1, 0.0, 1e-4, 0.0, 0.0)
         assert not cn.row(k * DT, 0.1, 1e-4, -1.0, 0.0, 0.0)
-    assert cn.scale == U_PRIOR and cn.tests == 0
-    assert off.scale == 1.0
-
-
-def test_the_prior_holds_until_the_first_test_and_white_rows_drop_it(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    """GIVEN a fresh instance with a prior of 10 (shipped: U_PRIOR = 1, none), THEN the
-    course rows' scale is the prior (a slip not yet ruled out) until the first test ends;
-    white rows then drop it to 1 without counting a switch (the prior is not the test
-    switching on); reset() brings the prior back, a chain restart (a yaw set) does not."""
-    import navd.core.aiding.course_noise as course_noise
-    monkeypatch.setattr(course_noise, "U_PRIOR", 10.0)
-    gen = np.random.default_rng(6)
-    r = (0.45 * DEG) ** 2
-    cn = CourseNoise(True)
-    assert cn.scale == 10.0
-    k = 0
-    while not cn.row(k * DT, float(gen.normal(0.0, math.sqrt(r))), r, 100.0 * r, 0.0, 0.0):
-        assert cn.scale == 10.0
-        k += 1
-    assert k * DT == pytest.approx(3.0 * T_BLOCK, abs=0.5)  # three blocks of rows
-    assert cn.scale == 1.0 and cn.switched == 0
-    cn.restart_chain()
-    assert cn.scale == 1.0
-    cn.reset()
-    assert cn.scale == 10.0
+    assert cn.scale == 1.0 and cn.tests == 0
 
 
 def test_an_overwhelming_slip_switches_on_at_the_first_test_white_noise_does_not() -> None:

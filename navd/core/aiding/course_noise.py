@@ -31,9 +31,8 @@ foreign car) 4.4-5.4, the wandering slip 60-550 (its smallest and largest).
 When that mean passes ``U_ON`` the course rows' variance is scaled by it (never below 1,
 until it falls under ``U_OFF``): the filter then averages the course over minutes, which is
 what a slip with a long-run variance lambda r needs, and the gyro carries the yaw between.
-Until the first test ends the scale is a prior, ``U_PRIOR`` (shipped 1); the first tests
-may switch it on alone when overwhelming (``U_FIRST``); once on it is an upper bound of
-the mean, not the mean (``U_UPPER``).
+The first tests may switch it on alone when overwhelming (``U_FIRST``); once on it is an
+upper bound of the mean, not the mean (``UPPER``).
 
 Two things bend the gyro-integrated heading that are not slip, and the test takes them out:
 the filter's gyro bias and z scale estimates change while the chain runs (fastest at the
@@ -77,17 +76,12 @@ U_OFF = 1.5
 # above ~30: chi-square's tail ~1e-7 for one to three tests); the wandering slip's first
 # test is in the hundreds, and waiting for four left 15 s more of a yaw that followed it
 U_FIRST = 29.0
-# the scale until the first test ends (~15 s of course rows after the yaw is set), for a
-# slip not yet ruled out.  Shipped 1 (none): 10 took slip_wander_1 from 4.1 to 2.4 % beyond
-# 3 sigma, but cost car480 0.027 deg of roll and, with the IMU noise 3x the config's, a
-# velocity lock-out reset in tests/test_adaptive_noise.py (docs/results.md)
-U_PRIOR = 1.0
-# when on, the scale is the mean's excess times (1 + U_UPPER sqrt(U_VAR / N_TESTS)): the
-# mean of 24 scatters by ~40 % of itself, and a scale drawn low left the yaw beyond 3 sigma
-# for seconds (slip_wander_1 seed 3: 20-50 where seeds 1-2 give 100-250); the factor of a
-# full ring even when fewer tests are in it (sqrt(U_VAR / n) at n = 4 tripled a receiver's
-# understated noise into the IMU noise scale)
-U_UPPER = 2.0
+# when on, the scale is 1 + the mean's excess, times UPPER = 1 + 2 sqrt(U_VAR / N_TESTS)
+# (two standard deviations of a full ring's mean): the mean of 24 scatters by ~40 % of
+# itself, and a scale drawn low left the yaw beyond 3 sigma for seconds (slip_wander_1 seed
+# 3: 20-50 where seeds 1-2 give 100-250); a full ring's factor even when fewer tests are in
+# it (sqrt(U_VAR / n) at n = 4 tripled a receiver's understated noise into the IMU scale)
+UPPER = 1.0 + 2.0 * math.sqrt(U_VAR / N_TESTS)
 # a row this far (chi-square(1), 4.9 sigma of the scaled variance) out of the blocks
 ROW_GATE = 24.0
 # a single yaw correction this large (rad) restarts the chain: not a small-error update
@@ -109,9 +103,8 @@ class CourseNoise:
     """Scale of the course rows' white variance from the open-loop course difference (see
     the module doc)."""
 
-    def __init__(self, enabled: bool, t_block: float = T_BLOCK) -> None:
+    def __init__(self, enabled: bool) -> None:
         self.enabled = enabled
-        self.t_block = t_block
         self._v = np.zeros(27)
         self._m = np.zeros(3)  # the chain's last three block means, rad
         self._r = np.zeros(3)  # their white variances, rad^2
@@ -125,10 +118,8 @@ class CourseNoise:
         """Forget everything (navigation restarts): the scale back to 1."""
         v = self._v
         v[:] = 0.0
-        # until the first test, the slip a ground vehicle's course may carry is assumed
-        v[_SCALE] = U_PRIOR if self.enabled else 1.0
-        v[_PREV] = v[_SCALE]
-        v[_PON] = v[_ON]
+        v[_SCALE] = 1.0
+        v[_PREV] = 1.0
         v[_UBAR] = math.nan
         self._u[:] = 0.0
         self._w[:] = 0.0
@@ -148,7 +139,7 @@ class CourseNoise:
 
     @property
     def mean_u(self) -> float:
-        """The last mean of u over the ring (NaN before MIN_TESTS tests)."""
+        """The last mean of u over the ring (NaN before the first test)."""
         return float(self._v[_UBAR])
 
     @property
@@ -232,7 +223,7 @@ class CourseNoise:
         v[_SR] += r_white
         v[_SN] += 1.0
         v[_TL] = t_s
-        if t_s - float(v[_T0]) < self.t_block - 1e-3 or v[_SN] < 2.0:
+        if t_s - float(v[_T0]) < T_BLOCK - 1e-3 or v[_SN] < 2.0:
             return False
         # the block is complete: its mean and the white variance of that mean
         n = float(v[_SN])
@@ -293,4 +284,4 @@ class CourseNoise:
             v[_ON] = 1.0
         elif c < U_OFF:
             v[_ON] = 0.0
-        v[_SCALE] = c * (1.0 + U_UPPER * math.sqrt(U_VAR / N_TESTS)) if v[_ON] else 1.0
+        v[_SCALE] = c * UPPER if v[_ON] else 1.0

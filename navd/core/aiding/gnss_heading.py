@@ -109,6 +109,12 @@ def course_row(H: Arr, z: Arr, R: Arr, row: int, mat_nb: Arr, rate_b: Arr, lever
         R[row, row] = sd_h * sd_h / vh2 + sd_beta * sd_beta
 
 
+def bias_down(est: Estimator) -> float:
+    """The main filter's gyro bias about down (c b, c the third row of C_b^n), rad/s."""
+    m, b = est.mat_nb, est.bias_g
+    return float(m[2, 0] * b[0] + m[2, 1] * b[1] + m[2, 2] * b[2])
+
+
 def rate_var_down(est: Estimator) -> float:
     """The main filter's variance of its gyro bias about down (c P_bb c^T, c the third row
     of C_b^n), (rad/s)^2."""
@@ -415,9 +421,8 @@ class CourseHeading:
         course_ok = (not self._gating) or zc * zc / sc <= self._gate1
         m_nb = est.mat_nb
         if self.noise.row(g.t_us * 1e-6, zc, r_white, sc, math.atan2(m_nb[1, 0], m_nb[0, 0]),
-                          float(est.buf[st.Q + 2]), a_lat, lrn.P,
-                          m_nb[2, 0] * est.bias_g[0] + m_nb[2, 1] * est.bias_g[1]
-                          + m_nb[2, 2] * est.bias_g[2], float(est.gyro_sf[SF_SCALE_Z])):
+                          float(est.buf[st.Q + 2]), a_lat, lrn.P, bias_down(est),
+                          float(est.gyro_sf[SF_SCALE_Z])):
             self._noise_changed(est)
         self._learn_epoch(est, g, zc, sc, a_lat, float(est.meas_R[3, 3])
                           - (sd_beta * sd_beta - self.sd_beta * self.sd_beta))
