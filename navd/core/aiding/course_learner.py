@@ -46,6 +46,7 @@ import numpy as np
 import numpy.typing as npt
 
 from navd.config import EstimatorConfig
+from navd.core._jit import jit
 
 Arr = npt.NDArray[np.float64]
 
@@ -323,34 +324,14 @@ class CourseLearner:
     def _update(self, y: float, r: float, gate: float, rest_of_sc: bool) -> bool:
         """The Kalman step with the row in ``_h``; ``rest_of_sc``: ``r`` is the whole
         innovation variance, of which the learners' part is not noise (cars)."""
-        n = self.n
-        h = self._h
-        P = self.P
-        ph = self._ph
-        for i in range(n):
-            a = 0.0
-            for j in range(n):
-                a += float(P[i, j]) * h[j]
-            ph[i] = a
-        hph = 0.0
-        for i in range(n):
-            hph += h[i] * ph[i]
-        if rest_of_sc:
-            r = max(r - hph, 1e-12)
-        s = hph + r
-        if y * y > gate * s:
+        nis = _row_update(self.P, self.x, self._h, self._ph, self.n, y, r, gate, rest_of_sc)
+        if nis < 0.0:
             return False  # an outlier teaches nothing
-        self._v[_NIS] = y * y / s
-        x = self.x
-        for i in range(n):
-            g = ph[i] / s
-            x[i] += g * y
-            for j in range(i, n):
-                P[i, j] = P[i, j] - g * ph[j]
-                P[j, i] = P[i, j]
+        self._v[_NIS] = nis
+        x, P = self.x, self.P
         lim = SF_MAX_SD * self._sf_sd0
         x[S] = min(max(float(x[S]), -lim), lim)
-        if n < _NC or self.watch:
+        if self.n < _NC or self.watch:
             P[K, K] += SLIP_Q
         if self._sf_var0 > 0.0:
             P[S, S] += SF_Q
@@ -369,11 +350,7 @@ class CourseLearner:
         v[_T] = t_s
         x, P = self.x, self.P
         x[E] += x[D] * dt
-        # P <- F P F^T with F = I + dt (row e, column d) + turned (row e, column s)
-        for j in range(n):
-            P[E, j] += dt * P[D, j] + turned * P[S, j]
-        for i in range(n):
-            P[i, E] += dt * P[i, D] + turned * P[i, S]
+        _drift_e(P, n, dt, turned)
         P[E, E] += self._q_e * dt
         P[D, D] += self._q_d * dt
         P[CN, CN] += _CURRENT_Q * dt
@@ -469,3 +446,41 @@ class CourseLearner:
         v[_YAW_END] = yaw
         v[_T] = t_s
         return pee
+
+
+@jit
+def _row_update(P: Arr, x: Arr, h: Arr, ph: Arr, n: int, y: float, r: float, gate: float,
+                rest_of_sc: bool) -> float:
+    """The scalar Kalman update of the first ``n`` states (``x`` (N,), ``P`` (N, N), the row
+    ``h`` (N,), ``ph`` (N,) scratch for P h) in place; returns the NIS, or -1 when gated
+    (nothing changed).  ``rest_of_sc``: ``r`` is the whole innovation variance."""
+    for i in range(n):
+        a = 0.0
+        for j in range(n):
+            a += P[i, j] * h[j]
+        ph[i] = a
+    hph = 0.0
+    for i in range(n):
+        hph += h[i] * ph[i]
+    if rest_of_sc:
+        r = max(r - hph, 1e-12)
+    s = hph + r
+    if y * y > gate * s:
+        return -1.0
+    for i in range(n):
+        g = ph[i] / s
+        x[i] += g * y
+        for j in range(i, n):
+            P[i, j] = P[i, j] - g * ph[j]
+            P[j, i] = P[i, j]
+    return y * y / s
+
+
+@jit
+def _drift_e(P: Arr, n: int, dt: float, turned: float) -> None:
+    """P <- F P F^T with F = I + dt (row e, column d) + turned (row e, column s), in place
+    on the first ``n`` states."""
+    for j in range(n):
+        P[E, j] += dt * P[D, j] + turned * P[S, j]
+    for i in range(n):
+        P[i, E] += dt * P[i, D] + turned * P[i, S]
