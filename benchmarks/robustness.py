@@ -579,7 +579,7 @@ def reference_gyro_corr(imu_t_us: npt.NDArray[np.int64], rates_rps: Arr,
 def score_log(spec: RealLog, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
     """Replay one real log with the default config (plus ``overrides``: experiments); a row
     dict (``reason`` when no figures)."""
-    from navd.cli.replay import log_lever_arm
+    from navd.cli.replay import log_accel_calibration, log_lever_arm
     from navd.io.logs import LogFormatError, LogOptions, read_log
 
     rec: dict[str, Any] = {"case": spec.name, "what": str(spec.path), "profile": spec.profile,
@@ -592,6 +592,8 @@ def score_log(spec: RealLog, overrides: tuple[str, ...] = ()) -> dict[str, Any]:
     # the antenna position a log states, as `navd replay --log` takes it (none of ours does)
     tables, _ = log_lever_arm(load_config(None, [f"filter.profile={spec.profile}",
                                                  *overrides]), data.lever_arm_m)
+    # ... and the accelerometer calibration it states (log171's INS_ACCOFFS)
+    tables, _ = log_accel_calibration(tables, data.accel_calibrated)
     est = build_estimator(tables)
     g = GnssOutcomes()
     rows = []

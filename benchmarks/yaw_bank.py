@@ -318,7 +318,7 @@ def gnss_manoeuvre_s(t_us: npt.NDArray[np.int64], vel_ne: Arr, after_us: int,
 def score_real(spec: rb.RealLog, config: Sequence[str] = ()) -> dict[str, Any]:
     """Replay one real log with the default config (plus ``config`` overrides) and its
     profile; the row (``reason`` when there are no figures)."""
-    from navd.cli.replay import log_lever_arm
+    from navd.cli.replay import log_accel_calibration, log_lever_arm
     from navd.io.logs import LogFormatError, LogOptions, read_log
 
     rec: dict[str, Any] = {"log": spec.name, "path": str(spec.path), "profile": spec.profile}
@@ -330,6 +330,8 @@ def score_real(spec: rb.RealLog, config: Sequence[str] = ()) -> dict[str, Any]:
     # the antenna position a log states, as `navd replay --log` takes it (none of ours does)
     tables, _ = log_lever_arm(load_config(None, [f"filter.profile={spec.profile}", *config]),
                               data.lever_arm_m)
+    # ... and the accelerometer calibration it states, as the replay does
+    tables, _ = log_accel_calibration(tables, data.accel_calibrated)
     est = build_estimator(tables)
     rows = [(s.t_us, s.roll_rad, s.pitch_rad, s.yaw_rad, *s.att_sd_rad, float(s.heading_aligned))
             for s in solutions(est, data.samples(), 10.0)]

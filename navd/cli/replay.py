@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from navd.config import ConfigError, apply_overrides, load_config
 from navd.config.daemon import RUN_ONLY_SECTIONS, DaemonConfig
+from navd.config.estimator import DEFAULT_IMU_GRADE, IMU_GRADES
 from navd.core.aiding.course_learner import CE, CN
 from navd.core.estimator import Estimator
 from navd.io.csv_replay import (
@@ -406,6 +407,12 @@ def _replay_log(a: argparse.Namespace) -> int:
         if data.lever_arm_m is not None:
             nav = DaemonConfig.from_dict(tables, need_input=False).nav
         print(f"navd replay: {said}", file=sys.stderr)
+    chosen, said = log_accel_calibration(tables, data.accel_calibrated)
+    if chosen is not tables:
+        tables = chosen
+        nav = DaemonConfig.from_dict(tables, need_input=False).nav
+    if said:
+        print(f"navd replay: {said}", file=sys.stderr)
     vehicle, vehicle_from = data.vehicle, data.vehicle_from
     if not vehicle and not vehicle_from:
         vehicle, vehicle_from = infer_vehicle(data.gnss_t_us, data.gnss)
@@ -457,6 +464,12 @@ def _mount_hint(est: Estimator) -> None:
 
 
 LOG_LEVER_ARM_SD_M = 0.05  # 1-sigma of an antenna position an autopilot's parameters state
+# 1-sigma (mg) of what an autopilot's accelerometer calibration leaves: the sensor's zero-g
+# drift with temperature since (MPU-6000: +-35 mg over 0-70 C, ~+-10 mg for 20 C away from
+# the calibration's) and the six-position fit's own error (a few mg).  The consumer grade's
+# 30 mg is for uncalibrated parts (+-50 mg zero-g tolerance); applied only where it is lower
+# than the grade's and neither imu.accel_bias_sd_mg nor imu.grade was set
+LOG_ACCEL_BIAS_SD_MG = 10.0
 
 
 def log_lever_arm(tables: dict[str, Any], lever: tuple[float, float, float] | None
@@ -485,6 +498,31 @@ def log_lever_arm(tables: dict[str, Any], lever: tuple[float, float, float] | No
         g["lever_arm_sd_m"] = LOG_LEVER_ARM_SD_M
         said += f", gnss.lever_arm_sd_m = {LOG_LEVER_ARM_SD_M:g}"
     return chosen, said
+
+
+def log_accel_calibration(tables: dict[str, Any], calibrated: str
+                          ) -> tuple[dict[str, Any], str]:
+    """The config tables with ``[imu] accel_bias_sd_mg`` at LOG_ACCEL_BIAS_SD_MG where the
+    log states that the autopilot calibrated the accelerometer (LogData.accel_calibrated)
+    and the user set neither it nor ``imu.grade`` (``--set`` or ``--config`` always
+    stands), and the line that says so ("" when the log states no calibration)."""
+    if not calibrated:
+        return tables, ""
+    imu = tables.get("imu")
+    if isinstance(imu, dict) and ("accel_bias_sd_mg" in imu or "grade" in imu):
+        return tables, (f"imu: accelerometer bias prior as set; note: the log states a "
+                        f"calibration ({calibrated})")
+    grade = IMU_GRADES[DEFAULT_IMU_GRADE]["accel_bias_sd_mg"]
+    if grade <= LOG_ACCEL_BIAS_SD_MG:
+        return tables, ""
+    chosen = copy.deepcopy(tables)
+    t = chosen.setdefault("imu", {})
+    if not isinstance(t, dict):
+        return tables, ""
+    t["accel_bias_sd_mg"] = LOG_ACCEL_BIAS_SD_MG
+    return chosen, (f"imu.accel_bias_sd_mg = {LOG_ACCEL_BIAS_SD_MG:g}: the log states an "
+                    f"accelerometer calibration (the {DEFAULT_IMU_GRADE} grade's {grade:g} mg "
+                    "is for uncalibrated parts); --set imu.accel_bias_sd_mg=... overrides")
 
 
 def log_profile(tables: dict[str, Any], nav: NavConfig, vehicle: str, vehicle_from: str

@@ -303,10 +303,13 @@ class SampleBuilder:
     def build(self, fmt: str, path: str, reference: Reference,
               damage: LogDamage | None = None, notes: list[str] | None = None,
               t_end_us: int | None = None, vehicle: tuple[str, str] = ("", ""),
-              lever_arm: tuple[tuple[float, float, float], str] | None = None) -> LogData:
+              lever_arm: tuple[tuple[float, float, float], str] | None = None,
+              accel_calibrated: str | None = None) -> LogData:
         """The LogData of what was added.  ``vehicle``: (navd profile or "", what in the
         log states the vehicle type or "") (see :attr:`LogData.vehicle`); ``lever_arm``:
-        (antenna position relative to the IMU, what states it) or None."""
+        (antenna position relative to the IMU, what states it) or None;
+        ``accel_calibrated``: what states that the logged accelerometer data are calibrated
+        (:func:`accel_calibration_from_params`) or None."""
         imu_t = np.asarray(self._imu_t, dtype=np.int64)
         imu_dt = np.asarray(self._imu_dt, dtype=np.int64)
         imu_v = np.asarray(self._imu_v, dtype=np.float64).reshape(-1, 6)
@@ -331,8 +334,12 @@ class SampleBuilder:
             all_notes.append(f"GNSS antenna at ({lever[0]:.3f}, {lever[1]:.3f}, "
                              f"{lever[2]:.3f}) m from the IMU (body FRD): {lever_from}; "
                              "--set gnss.lever_arm_m=... overrides")
+        if accel_calibrated:
+            all_notes.append(f"accelerometer calibrated by the autopilot ({accel_calibrated}): "
+                             "the logged data have its offsets and scales applied")
         return LogData(fmt, path, imu_t, imu_dt, imu_v, gnss_t, gnss_v, gnss_fix, ref, damage,
-                       all_notes, vehicle[0], vehicle[1], lever, lever_from)
+                       all_notes, vehicle[0], vehicle[1], lever, lever_from,
+                       accel_calibrated or "")
 
 
 # An antenna or IMU position beyond this from the body origin (m) is not a setting of a
@@ -381,6 +388,37 @@ def lever_arm_from_params(params: Mapping[str, float],
     return lever, said
 
 
+def accel_calibration_from_params(params: Mapping[str, float],
+                                  names: Sequence[tuple[tuple[str, str, str],
+                                                        tuple[str, str, str]]]) -> str | None:
+    """What says the logged accelerometer data are calibrated: the first (offset triple,
+    scale triple) of ``names`` whose offsets are all in ``params`` and not all zero, or
+    whose scales are there and not all one (the autopilots' "never calibrated" values),
+    as "NAME* (x, y, z mg)"; None when none is, or a value is not finite.
+
+    Why it matters: ArduPilot and PX4 subtract these offsets (and apply the scales) before
+    they log or publish the IMU's data (ArduPilot ``AP_InertialSensor_Backend``: offsets and
+    scaling, then the board rotation), so what is left in the data is the calibration's
+    residual and the sensor's drift since, not an uncalibrated MEMS's zero-g offset (the
+    consumer grade's 30 mg covers +-50 mg datasheet tolerances)."""
+    for offs, scales in names:
+        try:
+            o = [float(params[n]) for n in offs] if all(n in params for n in offs) else None
+            sc = ([float(params[n]) for n in scales] if all(n in params for n in scales)
+                  else None)
+        except (TypeError, ValueError):
+            return None
+        vals = (o or []) + (sc or [])
+        if not all(math.isfinite(v) for v in vals):
+            return None
+        if o is not None and any(v != 0.0 for v in o):
+            mg = ", ".join(f"{v / 9.80665e-3:.1f}" for v in o)
+            return f"{offs[0][:-1]}* ({mg} mg)"
+        if sc is not None and any(v != 1.0 for v in sc):
+            return f"{scales[0][:-1]}* ({', '.join(f'{v:.4f}' for v in sc)})"
+    return None
+
+
 def _quiet_logger() -> logging.Logger:
     # records dropped while reading a log are summarised in LogData.notes instead
     lg = logging.getLogger("navd.io.logs.read")
@@ -405,6 +443,9 @@ class LogData:
     lever_arm_m: the GNSS antenna's position relative to the IMU, body FRD, m, where the
         log's parameters state a non-zero one (:func:`lever_arm_from_params`), else None;
         lever_arm_from: the parameters it came from ("" when None).
+    accel_calibrated: what in the log states that the autopilot calibrated the accelerometer
+        whose data these are (offsets / scales applied before logging), "" when nothing
+        does (:func:`accel_calibration_from_params`).
     """
 
     fmt: str
@@ -422,6 +463,7 @@ class LogData:
     vehicle_from: str = ""
     lever_arm_m: tuple[float, float, float] | None = None
     lever_arm_from: str = ""
+    accel_calibrated: str = ""
 
     @property
     def n_samples(self) -> int:

@@ -41,7 +41,10 @@ Messages (pymavlink applies the format multipliers, so values are in the units b
           are moved that much earlier (GPS TimeUS is when the fix reached the autopilot);
           and the antenna's and the IMU's positions (``GPS1_POS_X/Y/Z``, before 4.6
           ``GPS_POS1_X/Y/Z``; ``INS_POS1_X/Y/Z``; m, FRD, from the body origin): their
-          difference is LogData.lever_arm_m (ArduCopter 3.3 has neither).
+          difference is LogData.lever_arm_m (ArduCopter 3.3 has neither); and the chosen
+          IMU's accelerometer calibration (``INS_ACCOFFS_X/Y/Z``, ``INS_ACCSCAL_X/Y/Z``;
+          ``INS_ACC2..`` for the second): when set, LogData.accel_calibrated (the IMU
+          message's data have it applied).
 
 Damage: messages are read in sequence and the offset of each is checked; the first skipped
 bytes (no 0xA3 0x95 header where a message should start, or an unknown type) or a message cut
@@ -70,6 +73,7 @@ from navd.io.logs.common import (
     LogOptions,
     Reference,
     SampleBuilder,
+    accel_calibration_from_params,
     lever_arm_from_params,
 )
 from navd.types import FixType, GnssSample
@@ -245,7 +249,9 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
     delays: dict[str, float] = {}  # the autopilot's GNSS latency settings (ms), by name
     antenna, ins = _position_params(opts)
     positions: dict[str, float] = {}  # antenna and IMU position parameters (m), by name
-    wanted = {n for trio in (*antenna, *ins) for n in trio}
+    accel_cal = _accel_cal_params(opts)
+    wanted = {n for trio in (*antenna, *ins, *(t for pair in accel_cal for t in pair))
+              for n in trio}
     data_len = int(r.data_len)
     try:
         with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
@@ -408,7 +414,21 @@ def read_dataflash(path: str | Path, options: LogOptions | None = None) -> LogDa
         r.filehandle.close()
     return b.build("dataflash", p, ref, damage, notes,
                    vehicle=vehicle_from_firmware(firmware),
-                   lever_arm=lever_arm_from_params(positions, antenna, ins))
+                   lever_arm=lever_arm_from_params(positions, antenna, ins),
+                   # the IMU message carries the calibrated data; the raw ACC/GYR streams
+                   # a log without it falls back on may not
+                   accel_calibrated=(accel_calibration_from_params(positions, accel_cal)
+                                     if n_imu > 0 else None))
+
+
+def _accel_cal_params(opts: LogOptions) -> list[tuple[tuple[str, str, str],
+                                                     tuple[str, str, str]]]:
+    """The chosen IMU's accelerometer calibration parameters (offsets, m/s^2; scales):
+    ``INS_ACCOFFS_X``.. / ``INS_ACCSCAL_X``.. for the first, ``INS_ACC2OFFS_X``.. for the
+    second, ``INS_ACC3..`` for the third."""
+    k = "" if opts.imu_instance == 0 else str(opts.imu_instance + 1)
+    return [((f"INS_ACC{k}OFFS_X", f"INS_ACC{k}OFFS_Y", f"INS_ACC{k}OFFS_Z"),
+             (f"INS_ACC{k}SCAL_X", f"INS_ACC{k}SCAL_Y", f"INS_ACC{k}SCAL_Z"))]
 
 
 def _position_params(opts: LogOptions) -> tuple[list[tuple[str, str, str]],

@@ -34,6 +34,9 @@ mixed):
                         (true: rotorcraft; false says nothing: a plane or a rover).
     antenna position    (LogData.lever_arm_m) the parameters ``EKF2_GPS_POS_X/Y/Z`` minus
                         ``EKF2_IMU_POS_X/Y/Z`` (m, FRD, from the body origin).
+    accelerometer cal.  (LogData.accel_calibrated) ``CAL_ACC<i>_X/Y/ZOFF`` (m/s^2) not all
+                        zero or ``CAL_ACC<i>_X/Y/ZSCALE`` not all one, i the IMU instance
+                        read: PX4's sensor topics carry the calibration applied.
 
 Damage: before pyulog parses, the message framing (3-byte header: uint16 size, uint8 type)
 is walked from offset 16; the first unknown message type, data message for an unsubscribed
@@ -61,6 +64,7 @@ from navd.io.logs.common import (
     LogOptions,
     Reference,
     SampleBuilder,
+    accel_calibration_from_params,
     lever_arm_from_params,
     vehicle_from_mav_type,
 )
@@ -76,6 +80,16 @@ TOPICS = ("sensor_combined", "sensor_accel", "sensor_gyro", "vehicle_gps_positio
 # the antenna's and the IMU's position parameters (m from the body origin, FRD)
 _ANTENNA = [("EKF2_GPS_POS_X", "EKF2_GPS_POS_Y", "EKF2_GPS_POS_Z")]
 _IMU_POS = [("EKF2_IMU_POS_X", "EKF2_IMU_POS_Y", "EKF2_IMU_POS_Z")]
+
+
+def _accel_cal_params(instance: int) -> list[tuple[tuple[str, str, str],
+                                                   tuple[str, str, str]]]:
+    """PX4's accelerometer calibration of calibration slot ``instance`` (``CAL_ACC0_XOFF``..,
+    m/s^2; ``CAL_ACC0_XSCALE``..): sensor_combined and sensor_accel carry it applied."""
+    k = f"CAL_ACC{instance}_"
+    return [((k + "XOFF", k + "YOFF", k + "ZOFF"), (k + "XSCALE", k + "YSCALE", k + "ZSCALE"))]
+
+
 _VEHICLE_TYPE = {1: ("multirotor", "ROTARY_WING"), 2: ("fixed_wing", "FIXED_WING"),
                  3: ("ground", "ROVER")}
 
@@ -347,4 +361,6 @@ def read_ulog(path: str | Path, options: LogOptions | None = None) -> LogData:
         notes.append("pyulog: " + out.replace("\n", "; "))
     params = getattr(ulog, "initial_parameters", {}) or {}
     return b.build("ulog", p, ref, damage, notes, vehicle=_vehicle(ulog),
-                   lever_arm=lever_arm_from_params(params, _ANTENNA, _IMU_POS))
+                   lever_arm=lever_arm_from_params(params, _ANTENNA, _IMU_POS),
+                   accel_calibrated=accel_calibration_from_params(
+                       params, _accel_cal_params(opts.imu_instance)))
