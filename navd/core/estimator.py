@@ -214,6 +214,8 @@ class Estimator:
         self.x[:] = 0.0
         st.history_reset(self._buf)
         self._imu_dt_us = 0
+        # how old the reading being fused is, s (state_at; 0 outside a delayed reading)
+        self._lag_s = 0.0
         self._prev_inc[:] = 0.0
         self._dprev[:] = 0.0
         self._acc[:] = 0.0
@@ -248,6 +250,12 @@ class Estimator:
         """
         if isinstance(sample, ImuSample):
             return self._push_imu(sample)
+        try:
+            return self._push_aiding(sample)
+        finally:
+            self._lag_s = 0.0
+
+    def _push_aiding(self, sample: Sample) -> bool:
         if isinstance(sample, GnssSample):
             if self._stage == _NAV:
                 self._innov_begin(INNOV_POS, INNOV_POL, sample.t_us)
@@ -331,7 +339,10 @@ class Estimator:
         ``<name>_accepted`` / ``_rejected`` / ``_singular`` and returns the NIS (negative
         -NIS if gated out, -inf if the innovation covariance was singular).
         """
-        nis = st.update(self._buf, m, chi2_gate if self._gating else 0.0, hold, hold_mask)
+        # a reading linearised about its own past time (state_at) is an update of that
+        # time's covariance: the process noise since is not what it measures (st.update)
+        nis = st.update(self._buf, m, chi2_gate if self._gating else 0.0, hold, hold_mask,
+                        self._lag_s)
         if nis >= 0.0:
             st.inject(self._buf)
             self.counters[name + "_accepted"] += 1
@@ -346,15 +357,21 @@ class Estimator:
         """Put the nominal state of time ``t_us`` in place, for an aid to linearise about.
 
         A reading older than the newest IMU sample is linearised about the state at its own
-        time of validity (as GNSS is), its correction then applied to the present state.
+        time of validity (as GNSS is), its correction then applied to the present state, and
+        until the sample's push returns every update is one of the covariance of then
+        (``st.update``'s ``lag``).
         Returns False when ``t_us`` is the present (nothing swapped), True when the recorded
         state was swapped in (call :meth:`state_restore` before :meth:`fuse_block`), None
         when that time is no longer kept.
         """
         if (self.t_us - t_us) * 2 <= self._imu_dt_us:
+            self._lag_s = 0.0
             return False
         if not st.history_swap(self._buf, float(t_us), 0.5 * self._imu_dt_us + 1.0):
+            self._lag_s = 0.0
             return None
+        # the updates of this sample (until push returns) are of the covariance of then
+        self._lag_s = (self.t_us - t_us) * 1e-6
         return True
 
     def state_restore(self) -> None:
