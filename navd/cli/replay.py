@@ -467,8 +467,8 @@ LOG_LEVER_ARM_SD_M = 0.05  # 1-sigma of an antenna position an autopilot's param
 # 1-sigma (mg) of what an autopilot's accelerometer calibration leaves: the sensor's zero-g
 # drift with temperature since (MPU-6000: +-35 mg over 0-70 C, ~+-10 mg for 20 C away from
 # the calibration's) and the six-position fit's own error (a few mg).  The consumer grade's
-# 30 mg is for uncalibrated parts (+-50 mg zero-g tolerance); applied only where it is lower
-# than the grade's and neither imu.accel_bias_sd_mg nor imu.grade was set
+# 30 mg is for uncalibrated parts (+-50 mg zero-g tolerance); applied only where neither
+# imu.accel_bias_sd_mg nor imu.grade was set
 LOG_ACCEL_BIAS_SD_MG = 10.0
 
 
@@ -513,8 +513,6 @@ def log_accel_calibration(tables: dict[str, Any], calibrated: str
         return tables, (f"imu: accelerometer bias prior as set; note: the log states a "
                         f"calibration ({calibrated})")
     grade = IMU_GRADES[DEFAULT_IMU_GRADE]["accel_bias_sd_mg"]
-    if grade <= LOG_ACCEL_BIAS_SD_MG:
-        return tables, ""
     chosen = copy.deepcopy(tables)
     t = chosen.setdefault("imu", {})
     if not isinstance(t, dict):

@@ -255,25 +255,27 @@ def _lag_noise(buf: Arr, Pm: Arr, D: Arr, lag: float) -> float:
     Lc = buf[B:B + 225].reshape((15, 15))
     f = 1.0
     for _ in range(4):
-        ok = True
-        for i in range(15):
-            for j in range(i + 1):
-                v = Pm[i, j] - f * D[i, j]
-                for k in range(j):
-                    v -= Lc[i, k] * Lc[j, k]
-                if i == j:
-                    if v <= 0.0:
-                        ok = False
-                        break
-                    Lc[i, i] = math.sqrt(v)
-                else:
-                    Lc[i, j] = v / Lc[j, j]
-            if not ok:
-                break
-        if ok:
+        if _minus_is_pd(Pm, D, f, Lc):
             return f
         f *= 0.5
     return 0.0
+
+
+@jit
+def _minus_is_pd(Pm: Arr, D: Arr, f: float, Lc: Arr) -> bool:
+    """Whether Pm - f D is positive definite (its Cholesky factor into ``Lc``)."""
+    for i in range(15):
+        for j in range(i + 1):
+            v = Pm[i, j] - f * D[i, j]
+            for k in range(j):
+                v -= Lc[i, k] * Lc[j, k]
+            if i == j:
+                if v <= 0.0:
+                    return False
+                Lc[i, i] = math.sqrt(v)
+            else:
+                Lc[i, j] = v / Lc[j, j]
+    return True
 
 
 @jit
