@@ -147,12 +147,21 @@ def _vib_car(dps: float) -> dict[str, Any]:
             "imu.vib_accel_mps2": [3.0, 3.0, 5.0]}
 
 
+# car480's speed events (start s, duration s, target m/s), as in its scenario file
+CAR480_SPEEDS = ((10.0, 15.0, 15.0), (60.0, 10.0, 20.0), (150.0, 12.0, 12.0),
+                 (200.0, 12.0, 24.0), (285.0, 12.0, 10.0), (330.0, 10.0, 16.0),
+                 (395.0, 10.0, 20.0), (440.0, 12.0, 12.0))
+
+
+def _speeds(*events: tuple[float, float, float]) -> list[dict[str, float]]:
+    """Speed events (start s, duration s, target m/s; negative: reversing) as overrides."""
+    return [{"t_s": t, "dur_s": d, "to": v} for t, d, v in events]
+
+
 def _car_speeds(lo: float, hi: float) -> list[dict[str, float]]:
     """car480's speed events with every target squeezed into [lo, hi] m/s (same times)."""
-    times = ((10.0, 15.0), (60.0, 10.0), (150.0, 12.0), (200.0, 12.0), (285.0, 12.0),
-             (330.0, 10.0), (395.0, 10.0), (440.0, 12.0))
-    return [{"t_s": t, "dur_s": d, "to": hi if i % 2 == 0 else lo}
-            for i, (t, d) in enumerate(times)]
+    return _speeds(*((t, d, hi if i % 2 == 0 else lo)
+                     for i, (t, d, _) in enumerate(CAR480_SPEEDS)))
 
 
 # an antenna on a car's roof, the IMU in its cabin (body FRD, m): 1.6 m, never measured
@@ -258,6 +267,19 @@ CASES: tuple[Case, ...] = (
                     "trajectory.slip_wander_tau_s": 2.0}),
     Case("slow_2-4", "car480", "ground", "car480's route at 2-4 m/s (starts at 3 m/s)",
          overrides={"trajectory.speed0_mps": 3.0, "trajectory.speed": _car_speeds(2.0, 4.0)}),
+    Case("reverse_45s", "car480", "ground",
+         "car480 stops at 140 s, reverses at 3 m/s for 45 s through its -90 deg turn, then "
+         "drives on (reversing longer than [heading] max_reverse_s)",
+         overrides={"trajectory.speed": _speeds((10.0, 15.0, 15.0), (60.0, 10.0, 20.0),
+                                                (130.0, 10.0, 0.0), (141.0, 4.0, -3.0),
+                                                (190.0, 4.0, 0.0), (194.0, 5.0, 12.0),
+                                                *CAR480_SPEEDS[3:])}),
+    Case("reverse_start", "car480", "ground",
+         "car480 from rest, backing out of its space first: 2 m/s backwards for 7 s, a stop, "
+         "then the route",
+         overrides={"trajectory.speed0_mps": 0.0,
+                    "trajectory.speed": _speeds((5.0, 3.0, -2.0), (12.0, 3.0, 0.0),
+                                                (17.0, 8.0, 15.0), *CAR480_SPEEDS[1:])}),
     Case("gnss_vel_x3", "car480", "ground",
          "GNSS velocity noise 3x the reported accuracy (0.3 vs 0.1 m/s)",
          overrides={"gnss.vel_noise_scale": 3.0}),

@@ -620,7 +620,9 @@ def _validate(sc: Scenario) -> None:
             _check_events(getattr(tr, name), f"trajectory.{name}")
         _check(tr.speed0_mps >= 0.0, "trajectory.speed0_mps", "must be >= 0 m/s")
         for i, ev in enumerate(tr.speed):
-            _check(ev.to >= 0.0, f"trajectory.speed[{i}].to", "speed target must be >= 0 m/s")
+            # a negative target reverses along body x (parking, a robot backing out)
+            _check(abs(ev.to) < 100.0, f"trajectory.speed[{i}].to",
+                   "speed target must be within +-100 m/s")
         for i, ev in enumerate(tr.grade):
             _check(abs(ev.to) < 45.0, f"trajectory.grade[{i}].to", "pitch must be < 45 deg")
         _check(0.0 <= tr.sway_deg <= 30.0, "trajectory.sway_deg", "must be in [0, 30] deg")

@@ -110,7 +110,8 @@ def _checks(est: Any, course_off_deg: float, n: int, t0_s: float) -> None:
     al = est.gnss.course.align
     for k in range(n):
         al.check_course(est, int((t0_s + 0.1 * k) * 1e6), 2.0 * math.cos(chi),
-                        2.0 * math.sin(chi), 0.1, est.gnss.course.learn, math.radians(0.3))
+                        2.0 * math.sin(chi), 0.1, est.gnss.course.learn, math.radians(0.3),
+                        est.gnss.course.direction)
 
 
 def test_a_yaw_off_within_each_checks_sigma_but_not_the_means_is_unflagged() -> None:
@@ -127,10 +128,11 @@ def test_a_yaw_off_within_each_checks_sigma_but_not_the_means_is_unflagged() -> 
         est.P[2, :] = 0.0
         est.P[:, 2] = 0.0
         est.P[2, 2] = math.radians(1.0) ** 2
-        _checks(est, 0.0, 40, 0.0)
+        # at 2 m/s (a reversing speed) forward checks flag the yaw after max_reverse_s
+        _checks(est, 0.0, 310, 0.0)
         assert est.heading_aligned
         yaw = math.atan2(est.mat_nb[1, 0], est.mat_nb[0, 0])
-        _checks(est, off, 5 if dropped else 100, 4.0)
+        _checks(est, off, 5 if dropped else 100, 31.0)
         assert est.heading_aligned is not dropped, off
         assert est.counters["heading_unflagged_drift"] == int(dropped)
         assert not est.gnss.course.align.realign_requested
@@ -150,3 +152,21 @@ def test_one_epoch_turning_a_flagged_yaw_beyond_three_aligned_sigmas_unflags_it(
         est.gnss.course.align.note_yaw_moved(est, math.radians(turn_deg))
         assert est.heading_aligned is stays, (profile, turn_deg)
         assert est.counters["heading_unflagged_jump"] == (0 if stays else 1)
+
+
+def test_at_reversing_speed_forward_checks_flag_only_after_max_reverse_s() -> None:
+    """GIVEN a yaw set from the course and no verdict of the IMU (travel_direction.py),
+    WHEN the course checks agree at 2 m/s (below max_reverse_speed_mps: a car backing out
+    has the same course), THEN 4 s of them do not flag the heading and 31 s do; at 5 m/s
+    4 s do."""
+    for speed, n, flagged in ((2.0, 40, False), (2.0, 310, True), (5.0, 40, True)):
+        est = build_estimator(load_config(None, []))
+        est.gnss.course.align.yaw_given(est, from_course=True)
+        est.P[2, 2] = math.radians(1.0) ** 2
+        yaw = math.atan2(est.mat_nb[1, 0], est.mat_nb[0, 0])
+        al = est.gnss.course.align
+        for k in range(n):
+            al.check_course(est, int(0.1 * k * 1e6), speed * math.cos(yaw),
+                            speed * math.sin(yaw), 0.1, est.gnss.course.learn,
+                            math.radians(0.3), est.gnss.course.direction)
+        assert est.heading_aligned is flagged, (speed, n)

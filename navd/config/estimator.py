@@ -217,7 +217,10 @@ class HeadingSection:
     align_speed: float = _f(5.0, "mps")
     max_reverse_speed: float = _f(4.0, "mps")
     # backwards motion (course > 90 deg from the aligned yaw) for longer than this is a
-    # wrong yaw, not reversing: the yaw is set to the course again (heading_alignment.py)
+    # wrong yaw, not reversing: the yaw is set to the course again (heading_alignment.py),
+    # unless the IMU's accelerations confirmed the yaw (travel_direction.py); below
+    # max_reverse_speed a car's forward course checks flag the heading after this long
+    # without that confirmation
     max_reverse: float = _f(30.0, "s")
     # at rest with a gyro too poor to gyrocompass, position/velocity fixes must not move the
     # heading (GnssAiding._heading_hold in navd/core/aiding/gnss.py says why)

@@ -25,6 +25,7 @@ from navd.core.aiding.course_learner import CE, CN
 from navd.core.aiding.gnss_heading import CourseHeading
 from navd.core.aiding.gnss_recovery import LockoutRecovery
 from navd.core.aiding.mount_check import PitchMountCheck
+from navd.core.aiding.travel_direction import specific_force_sd
 from navd.core.chi2 import chi2_quantile
 from navd.core.earth import OMEGA_IE, mat_ne_into
 from navd.types import GnssSample
@@ -44,6 +45,13 @@ _GYROCOMPASS_USELESS_RAD = 5.0 * math.pi / 180.0
 _DEFAULT_H_ACC = 5.0
 _DEFAULT_V_ACC = 10.0
 _DEFAULT_VEL_ACC = 0.5
+
+
+def _rate_down(est: Estimator) -> float:
+    """The body's rate about down (yaw rate), rad/s."""
+    m = est.mat_nb
+    r = est.rate_b
+    return float(m[2, 0] * r[0] + m[2, 1] * r[1] + m[2, 2] * r[2])
 
 
 class GnssAiding:
@@ -97,6 +105,12 @@ class GnssAiding:
         e = self.mount_check.estimate
         return None if e is None else [round(math.degrees(x), 3) for x in e]
 
+    def _imu_yaw_error(self) -> list[float] | None:
+        d = self.course.direction
+        if not math.isfinite(d.yaw_error_t):
+            return None
+        return [round(math.degrees(d.yaw_error), 1), round(d.yaw_error_t, 1)]
+
     def _current(self) -> list[float] | None:
         lrn = self.course.learn
         if not lrn.current:
@@ -138,6 +152,10 @@ class GnssAiding:
             # factor on the GNSS course rows' variance: a slip of the course's own sized
             # against the gyro alone (1: the course is what the rows model)
             "course_noise_scale": round(self.course.noise.scale, 2),
+            # the yaw error the IMU's accelerations last showed (deg, true minus ours, with
+            # our later corrections taken out) and when (s; travel_direction.py: reversing
+            # told from a yaw 180 deg off); None before a verdict (ground and boat profiles)
+            "yaw_error_by_imu_deg": self._imu_yaw_error(),
             # the gyro-bias corrections' chi-square(3) statistic over its last 30 s (about 3
             # when consistent; above 16.3 the walk is raised); None before the first
             "gyro_bias_corrections_z": (round(self.adaptive.corrections_z, 2)
@@ -198,6 +216,8 @@ class GnssAiding:
 
         m_nb = est.mat_nb
         yaw0 = math.atan2(m_nb[1, 0], m_nb[0, 0])
+        if has_vel_h and self.course.align.course_checks:
+            self._direction_before(est, g, s_sd)
         self.course.begin_epoch(g.t_us * 1e-6, yaw0)
         self.adaptive.before_epoch(est)
         bg = est.bias_g
@@ -227,7 +247,22 @@ class GnssAiding:
             m_nb[2, 0] * bg[0] + m_nb[2, 1] * bg[1] + m_nb[2, 2] * bg[2] - rate0)
         self.recovery.after_epoch(est, g.t_us, h_sd, v_sd, s_sd, math.isfinite(g.vel_d))
         self.adaptive.after_epoch(est, math.isfinite(g.vel_d), s_sd)
+        if has_vel_h and self.course.align.course_checks:
+            yaw2 = math.atan2(m_nb[1, 0], m_nb[0, 0])
+            self.course.direction.after_epoch(
+                est.vel_n, yaw2, _rate_down(est),
+                (yaw2 - yaw0 + math.pi) % (2.0 * math.pi) - math.pi)
         return True
+
+    def _direction_before(self, est: Estimator, g: GnssSample, s_sd: float) -> None:
+        """Feed the travel-direction monitor the fix and the INS velocity before the
+        epoch's updates."""
+        C = est.mat_nb
+        vrw = self.cfg.imu.accel_vrw * math.sqrt(self.adaptive.scale
+                                                 * est.imu_noise.accel_floor)
+        self.course.direction.before_epoch(g.t_us * 1e-6, g.vel_n, g.vel_e, est.vel_n,
+                                           math.atan2(C[1, 0], C[0, 0]), _rate_down(est),
+                                           s_sd, specific_force_sd(est.P, C), vrw)
 
     def _heading_hold(self, est: Estimator, g: GnssSample) -> bool:
         """Whether this epoch's fixes (with horizontal velocity) must leave the heading

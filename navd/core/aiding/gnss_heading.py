@@ -42,6 +42,7 @@ from navd.core.aiding.base import (
 from navd.core.aiding.course_learner import CourseLearner, K, S
 from navd.core.aiding.course_noise import CourseNoise
 from navd.core.aiding.heading_alignment import HeadingAlignment
+from navd.core.aiding.travel_direction import TravelDirection
 from navd.core.chi2 import chi2_quantile
 from navd.core.kalman import SF_SCALE_Z, SF_YAW_Z
 from navd.core.rotation import exp_into, mat_to_euler, mul3_into
@@ -51,6 +52,10 @@ if TYPE_CHECKING:
     from navd.core.estimator import Estimator
 
 Arr = npt.NDArray[np.float64]
+
+# a yaw set from the course takes the course + 180 deg when the IMU said this lately that
+# the vehicle moves backwards (travel_direction.py), s
+_DIRECTION_RECENT_S = 10.0
 
 
 @jit
@@ -183,6 +188,9 @@ class CourseHeading:
                                  and c.heading.adapt_course_noise)
         # when the heading may be flagged aligned (not on one sample)
         self.align = HeadingAlignment(cfg)
+        # which way the yaw points by the IMU's accelerations: reversing or 180 deg wrong
+        # (travel_direction.py); where the course checks run
+        self.direction = TravelDirection()
         self._told = [False]  # course_not_heading counted (once per run)
         self._wv = np.zeros(2)  # the epoch's velocity through the water, m/s (_learn_epoch)
 
@@ -204,6 +212,7 @@ class CourseHeading:
     def reset(self) -> None:
         self.rejects = 0
         self.align.reset()
+        self.direction.reset()
         self.learn.reset()
         self.noise.reset()
         if self.watch is not None:
@@ -275,12 +284,14 @@ class CourseHeading:
             self.status = "waiting: lateral acceleration too high"
             return False
         self.learn.set_a_lat(yaw_rate * speed)  # centripetal, positive to the right
-        # Backwards motion in body x is reversing only at reversing speeds; faster than that
-        # it means our yaw is off by more than 90 degrees, which the course must correct.
-        # Only an aligned (confirmed) heading may excuse it: an unconfirmed yaw that points
-        # backwards is more likely wrong (heading_alignment.py).
+        # Backwards motion in body x is reversing when the IMU's accelerations confirmed
+        # the yaw (travel_direction.py), or, without that, at reversing speeds and
+        # with an aligned (confirmed) heading; else our yaw is off by more than 90 degrees,
+        # which the course must correct (an unconfirmed yaw that points backwards is more
+        # likely wrong: heading_alignment.py).
         vx = m[0, 0] * wn + m[1, 0] * we + m[2, 0] * g.vel_d
-        if vx < 0.0 and speed < c.heading.max_reverse_speed and est.heading_aligned:
+        if vx < 0.0 and (self.direction.yaw_right(float(est.P[2, 2]))
+                         or (speed < c.heading.max_reverse_speed and est.heading_aligned)):
             self.status = "waiting: reversing"
             return False
         self.status = "active"
@@ -308,7 +319,7 @@ class CourseHeading:
         cfg = self.cfg
         al = self.align
         wn, we = self.learn.water(g.vel_n, g.vel_e)
-        al.check_course(est, g.t_us, wn, we, s_sd, self.learn, self.sd_beta)
+        al.check_course(est, g.t_us, wn, we, s_sd, self.learn, self.sd_beta, self.direction)
         if al.realign_requested:
             # backwards for longer than reversing explains: the yaw is wrong by > 90 deg
             self.align_yaw(est, wn, we, s_sd, extra_sd=cfg.init.heading_sd)
@@ -494,10 +505,20 @@ class CourseHeading:
     def align_yaw(self, est: Estimator, vn: float, ve: float, s_sd: float,
                   extra_sd: float = 0.0) -> None:
         """Rotate the attitude about down so yaw equals the course of (vn, ve) m/s (through
-        the water on a boat); reset the yaw covariance (row/column 2 of P) to the course's
-        uncertainty (and the learnt current's)."""
+        the water on a boat), or the course + 180 deg where the IMU's accelerations of the
+        last ``_DIRECTION_RECENT_S`` say the vehicle is reversing (travel_direction.py);
+        reset the yaw covariance (row/column 2 of P) to the course's uncertainty (and the
+        learnt current's)."""
         _, _, yaw = mat_to_euler(est.mat_nb)
         chi = math.atan2(ve, vn)
+        dirn = self.direction
+        # the heading the IMU implied lately, less the course
+        off = (yaw + dirn.yaw_error - chi + math.pi) % (2.0 * math.pi) - math.pi
+        if (dirn.yaw_error_t >= est.t_us * 1e-6 - _DIRECTION_RECENT_S
+                and abs(off) > 0.5 * math.pi):
+            # behind the course: the vehicle backs up
+            chi = (chi + 2.0 * math.pi) % (2.0 * math.pi) - math.pi
+            est.counters["heading_course_behind"] += 1
         d = (yaw - chi + math.pi) % (2.0 * math.pi) - math.pi
         e = est.work[4]
         t = est.work[5]

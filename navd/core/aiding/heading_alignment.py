@@ -63,6 +63,7 @@ from navd.config import EstimatorConfig
 from navd.core.aiding.course_learner import CourseLearner, K
 
 if TYPE_CHECKING:
+    from navd.core.aiding.travel_direction import TravelDirection
     from navd.core.estimator import Estimator
 
 _CHECK_SPEED = 1.5  # m/s: course checks from here (course sigma ~4 deg at 0.1 m/s noise)
@@ -73,14 +74,18 @@ _CONFIRM_S = 3.0  # ... spanning at least this long, s
 # within half a second at 10 Hz (a run of single checks beyond 3 sigma needs _CONFIRM_S)
 _WATCH_N = 5
 _WATCH_FLOOR = 5.0 * math.pi / 180.0  # rad: below this the mean never drops the flag
+# the IMU's accelerations showed the yaw 180 deg off within this: acted on at once, s
+_FLIPPED_RECENT_S = 5.0
 
 _NONE, _COURSE, _OBSERVED = 0, 1, 2
 # state array layout (no Python floats are rebound on the epoch path: the allocation test
 # counts them): yaw origin, consistent run length, its first time (s), backward run length,
 # its first time (s), yaw movement during the run (rad), flag for a requested realignment,
-# inconsistent run length, its first time (s), checks in the watch window (count)
+# inconsistent run length, its first time (s), checks in the watch window (count), first
+# forward check since the last backward one (s, -1: none), this backward run counted as
+# reversing_long (1)
 (_ORIGIN, _OK_N, _OK_T0, _BACK_N, _BACK_T0, _MOVED, _REALIGN, _BAD_N, _BAD_T0,
- _WIN_N) = range(10)
+ _WIN_N, _FWD_T0, _LONG) = range(12)
 
 
 class HeadingAlignment:
@@ -94,10 +99,14 @@ class HeadingAlignment:
         # (the yaw was set from the course), so its flag also waits for the yaw sigma
         # (the current learnt in turns, aiding/course_learner.py)
         self._sigma_too = cfg.filter.profile == "boat"
+        # a car may reverse: below [heading] max_reverse_speed_mps its course checks flag
+        # the yaw only once the IMU's accelerations confirmed it (travel_direction.py) or
+        # after [heading] max_reverse_s of agreement
+        self._reverses = cfg.filter.profile == "ground"
         # traditional mode does not take course as heading: there a failed check only drops
         # the flag, the yaw is left to the filter
         self.may_realign = cfg.filter.mode == "completed"
-        self._s = np.zeros(10)
+        self._s = np.zeros(12)
         # the last _WATCH_N forward checks: (d (rad), course variance (rad^2)) per column,
         # written round-robin at _WIN_N % _WATCH_N
         self._win = np.zeros((2, _WATCH_N))
@@ -108,6 +117,7 @@ class HeadingAlignment:
         self._s[_OK_T0] = -1.0
         self._s[_BACK_T0] = -1.0
         self._s[_BAD_T0] = -1.0
+        self._s[_FWD_T0] = -1.0
 
     @property
     def yaw_set(self) -> bool:
@@ -131,6 +141,8 @@ class HeadingAlignment:
         s[_MOVED] = 0.0
         s[_REALIGN] = 0.0
         s[_WIN_N] = 0.0
+        s[_FWD_T0] = -1.0
+        s[_LONG] = 0.0
         if est.yaw_bank is not None:
             # the bank owns the flag; where the yaw is set the flag was set before
             if not est.heading_aligned:
@@ -167,12 +179,13 @@ class HeadingAlignment:
             s[_WIN_N] = 0.0
 
     def check_course(self, est: Estimator, t_us: int, vn: float, ve: float, s_sd: float,
-                     learn: CourseLearner, sd_beta: float) -> None:
+                     learn: CourseLearner, sd_beta: float, dirn: TravelDirection) -> None:
         """One epoch's course check (ground and boat profiles, yaw set); may set the flag or
         request a realignment (:attr:`realign_requested`).  ``vn, ve``: the GNSS velocity
         (through the water on a boat: less the learnt current), m/s; ``s_sd``: per-axis
         speed sigma, m/s; ``learn``: the learnt sideslip (and current); ``sd_beta``: the
-        configured sideslip sigma, rad."""
+        configured sideslip sigma, rad; ``dirn``: which way the IMU's accelerations say the
+        yaw points."""
         s = self._s
         if not self.course_checks or s[_ORIGIN] == _NONE or est.yaw_bank is not None:
             return
@@ -192,19 +205,42 @@ class HeadingAlignment:
         yaw = math.atan2(m[1, 0], m[0, 0])
         d = ((yaw - math.atan2(ve, vn) + float(learn.x[K]) * a_lat + math.pi)
              % (2.0 * math.pi) - math.pi)
+        flipped = dirn.yaw_flipped_since(t - _FLIPPED_RECENT_S)
         if abs(d) >= 0.5 * math.pi:
             s[_OK_N] = 0.0
             s[_BAD_N] = 0.0
             s[_WIN_N] = 0.0
+            s[_FWD_T0] = -1.0
             if s[_BACK_N] == 0.0:
                 s[_BACK_T0] = t
             s[_BACK_N] += 1.0
+            if flipped:
+                # the course and the IMU agree: forwards on a yaw 180 deg off
+                self._wrong(est, "flipped")
+                return
+            if dirn.yaw_right(float(est.P[2, 2])):
+                # the IMU confirmed the yaw: reversing, however long (said once per run
+                # beyond max_reverse_s: an IMU mounted backwards looks the same)
+                if s[_LONG] == 0.0 and t - s[_BACK_T0] >= c.max_reverse:
+                    est.counters["reversing_long"] += 1
+                    s[_LONG] = 1.0
+                return
+            # without that, reversing for as long as reversing explains
             limit = c.max_reverse if est.heading_aligned else _CONFIRM_S
             if (t - s[_BACK_T0] >= limit
                     and (est.heading_aligned or s[_BACK_N] >= _CONFIRM_N)):
                 self._wrong(est, "reverse")
             return
+        if flipped:
+            # the yaw was set from the course of a vehicle that backs up (the IMU says it
+            # points 180 deg off): realigned to the course + 180 deg (gnss_heading.align_yaw)
+            s[_BACK_N] = 0.0
+            self._wrong(est, "behind")
+            return
         s[_BACK_N] = 0.0
+        s[_LONG] = 0.0
+        if s[_FWD_T0] < 0.0:
+            s[_FWD_T0] = t
         var_c = (s_sd / speed) ** 2
         var_y = float(est.P[2, 2]) + sd_beta * sd_beta + learn.course_var(a_lat, yaw, vn, ve)
         var = var_y + var_c
@@ -234,7 +270,13 @@ class HeadingAlignment:
         s[_OK_N] += 1.0
         if (not est.heading_aligned and s[_OK_N] >= _CONFIRM_N
                 and t - s[_OK_T0] >= _CONFIRM_S
-                and (not self._sigma_too or est.P[2, 2] < self.cfg.init.aligned_sd ** 2)):
+                and (not self._sigma_too or est.P[2, 2] < self.cfg.init.aligned_sd ** 2)
+                and (speed >= c.max_reverse_speed or not self._reverses
+                     or t - s[_FWD_T0] >= c.max_reverse
+                     or dirn.yaw_right(float(est.P[2, 2])))):
+            # at reversing speeds a car's course agrees as well with a yaw 180 deg off
+            # (it backs out of its space): the flag waits for the IMU to tell the two
+            # apart, or for forward checks for longer than reversing lasts
             self._flag(est)
 
     def _watch(self, d: float, var_c: float, var_y: float) -> bool:
