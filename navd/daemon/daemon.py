@@ -117,10 +117,6 @@ _EST_WORDS = {
                       "IMU's accelerations confirm the heading: a long reverse, or an IMU "
                       "mounted backwards on the vehicle (then set [imu] mount_yaw_deg = 180; "
                       "until then heading and attitude are the IMU's)",
-    "heading_reset_flipped": "the IMU's accelerations showed the heading 180 deg off: set to "
-                             "the GNSS course",
-    "heading_reset_behind": "the IMU's accelerations showed the vehicle backing up on a "
-                            "heading taken from its course: turned by 180 deg",
     "heading_course_behind": "a heading set from the GNSS course took the course + 180 deg: "
                              "the IMU's accelerations said the vehicle backs up",
 }

@@ -43,7 +43,14 @@ backward check of a run, ``[heading] max_reverse_s`` (30 s) once the flag is set
 ``_CONFIRM_S`` with ``_CONFIRM_N`` checks while it is not (an unconfirmed yaw that points
 backwards is more likely wrong than a car that reverses before it ever drove forward).
 Beyond that the yaw is taken to be wrong: it is set to the course again (the caller does it)
-and the flag drops until confirmed again (``heading_reset_reverse``).  In traditional mode,
+and the flag drops until confirmed again (``heading_reset_reverse``).  The IMU's
+accelerations tell reversing from a yaw 180 deg off (travel_direction.py): a yaw they
+confirmed reverses however long (``reversing_long`` said once past ``max_reverse_s``), one
+they show flipped is reset at once (``heading_reset_flipped``; ``heading_reset_behind`` when
+the yaw came from the course of a vehicle backing up), and on the ground profile forward
+checks below ``max_reverse_speed_mps`` flag the yaw only with their confirmation or after
+``max_reverse_s`` of forward checks (a car backing out of its space has the same course as
+one driving off).  In traditional mode,
 which does not take course as heading, a failed check only drops the flag
 (``heading_unflagged_*``).  Any yaw reset drops
 the flag the same way.
@@ -101,7 +108,7 @@ class HeadingAlignment:
         self._sigma_too = cfg.filter.profile == "boat"
         # a car may reverse: below [heading] max_reverse_speed_mps its course checks flag
         # the yaw only once the IMU's accelerations confirmed it (travel_direction.py) or
-        # after [heading] max_reverse_s of agreement
+        # after [heading] max_reverse_s of forward checks
         self._reverses = cfg.filter.profile == "ground"
         # traditional mode does not take course as heading: there a failed check only drops
         # the flag, the yaw is left to the filter
