@@ -206,3 +206,20 @@ def test_an_imu_mounted_backwards_is_said() -> None:
     r = rb.score_sim(run, "ground")
     assert r.counters.get("reversing_long", 0) == 1
     assert r.counters.get("heading_reset_behind", 0) >= 1
+
+
+def test_gnss_velocity_glitch_bursts_never_flip_a_right_heading() -> None:
+    """GIVEN car480 with 30 bursts of 3-8 epochs whose GNSS velocity jumps by 2-8 m/s in one
+    direction (a glitch moves the GNSS velocity change alone, and may oppose a real
+    acceleration), default config, seeds 1-2, THEN the monitor never resets or turns the
+    yaw (no heading_reset_flipped / _behind, no heading_course_behind) and the aligned
+    heading stays within 2 deg."""
+    ov = {"gnss.jumps.enabled": True, "gnss.jumps.bursts": 30, "gnss.jumps.min_mps": 2.0,
+          "gnss.jumps.max_mps": 8.0, "gnss.jumps.shared_direction": True}
+    for seed in (1, 2):
+        run = generate(load_scenario("car480", ov), seed=seed, progress=False)
+        r = rb.score_sim(run, "ground")
+        for k in ("heading_reset_flipped", "heading_reset_behind", "heading_course_behind"):
+            assert r.counters.get(k, 0) == 0, (seed, k)
+        err = np.abs(r.err_deg[:, 2])
+        assert err[r.aligned].max() < 2.0, seed
