@@ -21,7 +21,8 @@ time constant) and agree in size; then ``atan2(J x G, J . G)`` estimates the yaw
 / between) record it as :attr:`yaw_error` at :attr:`yaw_error_t` (a GNSS glitch moves G
 alone: it fails the size test, and it lasts less than the run).  The filter's later yaw
 corrections rotate ``J`` and the recorded error with the yaw, so a yaw the checks turn by
-180 deg is known to be right at once.  A gap of more than ``_MAX_GAP_S`` between epochs
+180 deg is known to be right at once; so does a yaw turned between epochs by more than the
+gyro turned it (another aid, a reset).  A gap of more than ``_MAX_GAP_S`` between epochs
 restarts the sums.  Used on the ground and boat profiles only (where course checks run).
 """
 
@@ -50,9 +51,8 @@ _STALE = 30.0 * math.pi / 180.0  # a yaw sigma beyond this voids a confirmation
 
 # state layout: last epoch time (s, -1: none), its GNSS north/east velocity, the corrected
 # INS north/east velocity after it, the run's verdict class (-1 none, 0 right, 1 between,
-# 2 flipped), its length, its first time, the recorded
-# yaw error (rad) and its time (s, -inf: none), the yaw after the last epoch (rad) and its
-# rate about down then (rad/s)
+# 2 flipped), its length, its first time, the recorded yaw error (rad) and its time (s,
+# -inf: none), the yaw after the last epoch (rad) and its rate about down then (rad/s)
 (_T, _VGN, _VGE, _VIN, _VIE, _CLS, _RUN_N, _RUN_T0, _ERR, _ERR_T, _YAW, _RATE) = range(12)
 _N = 12
 
