@@ -147,10 +147,9 @@ def _vib_car(dps: float) -> dict[str, Any]:
             "imu.vib_accel_mps2": [3.0, 3.0, 5.0]}
 
 
-# car480's speed events (start s, duration s, target m/s), as in its scenario file
-CAR480_SPEEDS = ((10.0, 15.0, 15.0), (60.0, 10.0, 20.0), (150.0, 12.0, 12.0),
-                 (200.0, 12.0, 24.0), (285.0, 12.0, 10.0), (330.0, 10.0, 16.0),
-                 (395.0, 10.0, 20.0), (440.0, 12.0, 12.0))
+# car480's speed events (start s, duration s, target m/s), read from its scenario file
+CAR480_SPEEDS = tuple((ev.t_s, ev.dur_s, ev.to)
+                      for ev in load_scenario("car480").trajectory.speed)
 
 
 def _speeds(*events: tuple[float, float, float]) -> list[dict[str, float]]:
