@@ -114,3 +114,36 @@ def test_a_slow_sway_of_a_steep_platform_is_not_taken_for_rest() -> None:
     assert est.initialized
     assert not still_seen
     assert est.gyro_rest.updates == 0
+
+
+def test_a_run_the_fixes_end_is_measured_though_the_imu_looks_still() -> None:
+    """GIVEN six windows of a still IMU, WHEN a seventh window is also still by the IMU
+    but another sensor says it ends in motion (a car backing out gently: 0.7 m/s^2 is
+    within a noisy accelerometer's scatter), THEN close_window reports a run ended by motion
+    of the first five windows (the last still one left out); without the flag the same
+    window only extends the run."""
+    from navd.core.aiding.gyro_rest import _MIN_WINDOWS, _WINDOWS, close_window
+    from navd.core.chi2 import chi2_quantile
+
+    rng = np.random.default_rng(3)
+    gates = np.array([chi2_quantile(0.999, 3 * max(k - 1, 1)) for k in range(_WINDOWS + 1)])
+    trend = chi2_quantile(0.999, 1)
+
+    def run_of(moving_last: bool) -> tuple[int, float]:
+        win = np.zeros((_WINDOWS, 13))
+        n = np.zeros(1)
+        res = 0
+        for w in range(7):
+            a = np.zeros(14)
+            for _ in range(100):
+                r = OFFSET_RPS[0] + rng.normal(0.0, 0.002)
+                f = rng.normal(0.0, 0.3, 3) + np.array([0.0, 0.0, -9.8])
+                a[:12] += np.array([r, 0.0, 0.0, *f, r * r, 0.0, 0.0, *(f * f)])
+                a[12] += 1.0
+                a[13] += 0.01
+            res = close_window(a, win, n, 5.0 * DEG, 1.5, 9.8, gates, trend, _MIN_WINDOWS,
+                               moving_last and w == 6)
+        return res, float(n[0])
+
+    assert run_of(True) == (2, 5.0)
+    assert run_of(False) == (0, 7.0)
