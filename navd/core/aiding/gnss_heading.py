@@ -172,6 +172,8 @@ class CourseHeading:
         self._lever_var = c.gnss.lever_arm_sd * c.gnss.lever_arm_sd
         self.status = "off"
         self.rejects = 0
+        # this epoch's course row is the reversed course (a reversing the IMU confirmed)
+        self.backward = False
         # the sideslip per lateral acceleration (course = heading + gain * a_lat for a car
         # whose tyres slip in turns), the z gyro's scale error and a boat's water current,
         # learnt from the course innovations
@@ -290,8 +292,15 @@ class CourseHeading:
         # which the course must correct (an unconfirmed yaw that points backwards is more
         # likely wrong: heading_alignment.py).
         vx = m[0, 0] * wn + m[1, 0] * we + m[2, 0] * g.vel_d
-        if vx < 0.0 and (self.direction.yaw_right(float(est.P[2, 2]))
-                         or (speed < c.heading.max_reverse_speed and est.heading_aligned)):
+        self.backward = False
+        if vx < 0.0 and self.direction.yaw_right(float(est.P[2, 2])):
+            # the IMU says the body x axis points the other way: its heading is the course
+            # + 180 deg, a row as good as a forward one (and the only heading an IMU
+            # mounted backwards, unstated, ever gets)
+            self.backward = True
+            self.status = "active: reversing"
+            return True
+        if vx < 0.0 and speed < c.heading.max_reverse_speed and est.heading_aligned:
             self.status = "waiting: reversing"
             return False
         self.status = "active"
@@ -406,6 +415,9 @@ class CourseHeading:
                 est.state_restore()
             self.align_yaw(est, vn_c, ve_c, s_sd)
             return
+        if self.backward:
+            self._backward_row(est, g, vn_c, ve_c, s_sd, swapped, hold, hold_mask)
+            return
         self._wv[0] = vn_c
         self._wv[1] = ve_c
         # the course of the body x axis: the GNSS course minus the learned sideslip
@@ -458,6 +470,51 @@ class CourseHeading:
         self._velocity_alone(est, g, s_sd, hold, hold_mask)
         if self.rejects >= cfg.heading.reset_after:
             # persistently inconsistent: the yaw is wrong beyond the linear model; reset it
+            self.align_yaw(est, vn_c, ve_c, s_sd)
+            cnt["heading_reset"] += 1
+
+    def _backward_row(self, est: Estimator, g: GnssSample, vn_c: float, ve_c: float,
+                      s_sd: float, swapped: bool, hold: int, hold_mask: int) -> None:
+        """The velocity update with the reversed course's row: body x against the motion.
+
+        Nothing is learnt from it (the sideslip and the course-noise tests model forward
+        driving; a reversing car steers from its other end): the learnt slip enters only
+        as variance, with the course-noise scale as it stands."""
+        cnt = est.counters
+        H, z, P = est.meas_H, est.meas_z, est.P
+        a_lat = self.learn.a_lat
+        slip = float(self.learn.x[K]) * a_lat
+        sd_b2 = (self.sd_beta * self.sd_beta + self._course_var(est, a_lat) + slip * slip)
+        r_white = s_sd * s_sd / max(vn_c * vn_c + ve_c * ve_c, 1e-6) + sd_b2
+        sd_beta = math.sqrt(sd_b2 + (self.noise.scale - 1.0) * r_white)
+        st.course_row(est.buf, 3, -vn_c, -ve_c, s_sd, sd_beta)
+        if swapped:
+            est.state_restore()
+        zc = z[3]
+        sc = H[3, 0] * H[3, 0] * P[0, 0] + H[3, 1] * H[3, 1] * P[1, 1]
+        sc += 2.0 * H[3, 0] * H[3, 1] * P[0, 1] + P[2, 2]
+        sc -= 2.0 * (H[3, 0] * P[0, 2] + H[3, 1] * P[1, 2])
+        sc += est.meas_R[3, 3]
+        rec = est.innov[INNOV_COURSE]
+        rec[0] = zc
+        rec[INNOV_NIS] = zc * zc / sc
+        if (not self._gating) or zc * zc / sc <= self._gate1:
+            nis = est.fuse_block(4, self._gate4, "vel_course")
+            est.record_innovation(INNOV_VEL, 0, 3, nis)
+            if nis >= 0.0:
+                rec[INNOV_FLAG] = ACCEPTED
+                cnt["course_reversed_accepted"] += 1
+                self.rejects = 0
+                return
+            rec[INNOV_FLAG] = REJECTED if nis != -math.inf else SINGULAR
+        else:
+            rec[INNOV_FLAG] = REJECTED
+        cnt["course_reversed_rejected"] += 1
+        self.rejects += 1
+        self._velocity_alone(est, g, s_sd, hold, hold_mask)
+        if self.rejects >= self.cfg.heading.reset_after:
+            # persistently inconsistent: set the yaw to the course (align_yaw takes the
+            # side the IMU implies)
             self.align_yaw(est, vn_c, ve_c, s_sd)
             cnt["heading_reset"] += 1
 

@@ -45,7 +45,9 @@ backwards is more likely wrong than a car that reverses before it ever drove for
 Beyond that the yaw is taken to be wrong: it is set to the course again (the caller does it)
 and the flag drops until confirmed again (``heading_reset_reverse``).  The IMU's
 accelerations tell reversing from a yaw 180 deg off (travel_direction.py): a yaw they
-confirmed reverses however long (``reversing_long`` said once past ``max_reverse_s``), one
+confirmed reverses however long (``reversing_long`` said once past ``max_reverse_s``), its
+checks taken against the course + 180 deg as forward ones are against the course (a run
+beyond 3 sigma then only drops the flag: ``heading_unflagged_inconsistent``), one
 they show flipped is reset at once (``heading_reset_flipped``; ``heading_reset_behind`` when
 the yaw came from the course of a vehicle backing up), and on the ground profile forward
 checks below ``max_reverse_speed_mps`` flag the yaw only with their confirmation or after
@@ -213,7 +215,22 @@ class HeadingAlignment:
         d = ((yaw - math.atan2(ve, vn) + float(learn.x[K]) * a_lat + math.pi)
              % (2.0 * math.pi) - math.pi)
         flipped = dirn.yaw_flipped_since(t - _FLIPPED_RECENT_S)
-        if abs(d) >= 0.5 * math.pi:
+        backward = abs(d) >= 0.5 * math.pi
+        if backward and not flipped and dirn.yaw_right(float(est.P[2, 2])):
+            # the IMU confirmed the yaw: reversing, however long (said once per run beyond
+            # max_reverse_s: an IMU mounted backwards looks the same), and the reversed
+            # course is the check (the course update fuses it too: gnss_heading.py)
+            if s[_BACK_N] == 0.0:
+                s[_BACK_T0] = t
+                s[_OK_N] = 0.0
+                s[_BAD_N] = 0.0
+                s[_WIN_N] = 0.0
+            s[_BACK_N] += 1.0
+            if s[_LONG] == 0.0 and t - s[_BACK_T0] >= c.max_reverse:
+                est.counters["reversing_long"] += 1
+                s[_LONG] = 1.0
+            d = (d + 2.0 * math.pi) % (2.0 * math.pi) - math.pi
+        elif backward:
             s[_OK_N] = 0.0
             s[_BAD_N] = 0.0
             s[_WIN_N] = 0.0
@@ -225,29 +242,29 @@ class HeadingAlignment:
                 # the course and the IMU agree: forwards on a yaw 180 deg off
                 self._wrong(est, "flipped")
                 return
-            if dirn.yaw_right(float(est.P[2, 2])):
-                # the IMU confirmed the yaw: reversing, however long (said once per run
-                # beyond max_reverse_s: an IMU mounted backwards looks the same)
-                if s[_LONG] == 0.0 and t - s[_BACK_T0] >= c.max_reverse:
-                    est.counters["reversing_long"] += 1
-                    s[_LONG] = 1.0
-                return
-            # without that, reversing for as long as reversing explains
+            # without the IMU's confirmation, reversing for as long as reversing explains
             limit = c.max_reverse if est.heading_aligned else _CONFIRM_S
             if (t - s[_BACK_T0] >= limit
                     and (est.heading_aligned or s[_BACK_N] >= _CONFIRM_N)):
                 self._wrong(est, "reverse")
             return
-        if flipped:
-            # the yaw was set from the course of a vehicle that backs up (the IMU says it
-            # points 180 deg off): realigned to the course + 180 deg (gnss_heading.align_yaw)
+        else:
+            if flipped:
+                # the yaw was set from the course of a vehicle that backs up (the IMU says
+                # it points 180 deg off): realigned to the course + 180 deg
+                # (gnss_heading.align_yaw)
+                s[_BACK_N] = 0.0
+                self._wrong(est, "behind")
+                return
+            if s[_BACK_N] > 0.0:
+                # the direction of travel changed: a new run of checks
+                s[_OK_N] = 0.0
+                s[_BAD_N] = 0.0
+                s[_WIN_N] = 0.0
             s[_BACK_N] = 0.0
-            self._wrong(est, "behind")
-            return
-        s[_BACK_N] = 0.0
-        s[_LONG] = 0.0
-        if s[_FWD_T0] < 0.0:
-            s[_FWD_T0] = t
+            s[_LONG] = 0.0
+            if s[_FWD_T0] < 0.0:
+                s[_FWD_T0] = t
         var_c = (s_sd / speed) ** 2
         var_y = float(est.P[2, 2]) + sd_beta * sd_beta + learn.course_var(a_lat, yaw, vn, ve)
         var = var_y + var_c
@@ -266,7 +283,15 @@ class HeadingAlignment:
                 s[_BAD_T0] = t
             s[_BAD_N] += 1.0
             if s[_BAD_N] >= _CONFIRM_N and t - s[_BAD_T0] >= _CONFIRM_S:
-                self._wrong(est, "inconsistent")
+                if backward:
+                    # reversing: the IMU vouches for the yaw's side, a realignment to the
+                    # course would not know it; the flag waits for consistency again
+                    s[_BAD_N] = 0.0
+                    if est.heading_aligned:
+                        est.heading_aligned = False
+                        est.counters["heading_unflagged_inconsistent"] += 1
+                else:
+                    self._wrong(est, "inconsistent")
             return
         s[_BAD_N] = 0.0
         if drift:
