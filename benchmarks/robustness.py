@@ -163,6 +163,11 @@ def _car_speeds(lo: float, hi: float) -> list[dict[str, float]]:
                      for i, (t, d, _) in enumerate(CAR480_SPEEDS)))
 
 
+# a receiver (or an autopilot relaying it) that stamps its fixes on arrival: u-blox
+# receivers output a 10 Hz fix some 50-100 ms after its time of validity, and the serial
+# link and an autopilot's relaying add to it (PX4's EKF2_GPS_DELAY defaults to 110 ms)
+LATE_200MS: dict[str, Any] = {"gnss.latency_s": 0.2, "gnss.stamped_on_arrival": True}
+
 # an antenna on a car's roof, the IMU in its cabin (body FRD, m): 1.6 m, never measured
 LEVER_1_6M = (-1.0, 0.3, -1.2)
 
@@ -284,6 +289,14 @@ CASES: tuple[Case, ...] = (
          overrides={"gnss.vel_noise_scale": 3.0}),
     Case("gnss_5hz", "car480", "ground", "GNSS at 5 Hz instead of 10 Hz",
          overrides={"gnss.rate_hz": 5.0}),
+    Case("latency_200ms", "car480", "ground",
+         "fixes stamped on arrival, 200 ms after their time of validity; [gnss] delay_ms "
+         "not set", overrides=dict(LATE_200MS)),
+    Case("fw_clean", "fixed_wing_wind", "fixed_wing",
+         "the fixed-wing scenario as shipped (wind, crab), fixed_wing profile"),
+    Case("fw_latency_200ms", "fixed_wing_wind", "fixed_wing",
+         "the fixed-wing scenario, fixes stamped on arrival 200 ms late; delay not set",
+         overrides=dict(LATE_200MS)),
     Case("outage_60s", "car480", "ground", "no GNSS fix in [200, 260) s",
          overrides={"gnss.dropouts": [{"start_s": 200.0, "end_s": 260.0}]}),
     Case("lever_1.6m", "car480", "ground",

@@ -341,6 +341,8 @@ class GnssSpec:
     vel_sigma_v_mps: float = _f("m/s")
     pos_tau_s: float = _f("s", 0.0, "0: white position noise; > 0: Gauss-Markov")
     latency_s: float = _f("s", 0.0)
+    stamped_on_arrival: bool = _f("", False, "fixes carry their arrival time (validity + "
+                                  "latency), as an autopilot that stamps on receipt sends them")
     dropouts: tuple[DropoutSpec, ...] = _f("s", ())
     jumps: JumpSpec = field(default_factory=JumpSpec)
     vel_noise_scale: float = _f("", 1.0, "true velocity noise / reported velocity accuracy")

@@ -343,8 +343,9 @@ def simulate_gnss(t_us: npt.NDArray[np.int64], pos: Arr, vel_n: Arr, t0_us: int,
                      for a, b, c in zip(lat, lon, alt, strict=True)]).reshape(-1, 3)
     m = idx.shape[0]
     t_valid = t_us[idx].astype(np.int64)
+    t_arrival = t_valid + round(spec.latency_s * 1e6)
     cols: dict[str, npt.NDArray[Any]] = {
-        "t_us": t_valid,
+        "t_us": t_arrival if spec.stamped_on_arrival else t_valid,
         "lat_deg": np.degrees(lat),
         "lon_deg": np.degrees(lon),
         "alt_m": alt,
@@ -361,6 +362,6 @@ def simulate_gnss(t_us: npt.NDArray[np.int64], pos: Arr, vel_n: Arr, t0_us: int,
         "y_ecef": ecef[:, 1].copy(),
         "z_ecef": ecef[:, 2].copy(),
         "outlier": flag,
-        "t_arrival_us": t_valid + round(spec.latency_s * 1e6),
+        "t_arrival_us": t_arrival,
     }
     return cols, idx

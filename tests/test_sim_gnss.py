@@ -216,6 +216,28 @@ def test_gnss_samples_and_merge_order() -> None:
             assert last_imu_t == s.t_us          # right after the IMU sample of the same time
 
 
+def test_stamped_on_arrival_carries_the_arrival_time() -> None:
+    """GIVEN the same 5 s car480 run with 0.2 s latency and gnss.stamped_on_arrival (an
+    autopilot that stamps fixes on receipt), THEN every fix's t_us is its arrival time,
+    validity + 200 ms, its velocity is still the truth of its time of validity (the same
+    draw as without the flag), and each fix follows the IMU sample of its own stamp."""
+    base = {"duration_s": 5.0, "gnss.latency_s": 0.2}
+    plain = generate(load_scenario("car480", overrides=base), seed=1).gnss
+    run = generate(load_scenario("car480", overrides={**base,
+                                                      "gnss.stamped_on_arrival": True}),
+                   seed=1)
+    g = run.gnss
+    np.testing.assert_array_equal(g["t_us"], plain["t_us"] + 200_000)
+    np.testing.assert_array_equal(g["t_arrival_us"], g["t_us"])
+    np.testing.assert_array_equal(g["vel_n"], plain["vel_n"])
+    last_imu_t = -1
+    for s in run.samples():
+        if isinstance(s, ImuSample):
+            last_imu_t = s.t_us
+        elif s.t_us <= run.imu_t_us[-1]:
+            assert last_imu_t == s.t_us
+
+
 def test_latency_delays_arrival_only() -> None:
     """GIVEN a 5 s car480 run with 0.25 s GNSS latency,
     WHEN the GNSS table and the merged sample stream are produced,
