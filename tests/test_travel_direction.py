@@ -244,3 +244,40 @@ def test_gnss_velocity_glitch_bursts_never_flip_a_right_heading() -> None:
             assert r.counters.get(k, 0) == 0, (seed, k)
         err = np.abs(r.err_deg[:, 2])
         assert err[r.aligned].max() < 2.0, seed
+
+
+def _imu_errors(run: Any, r: Any, mount_deg: float) -> Any:
+    """navd's roll / pitch / heading errors (deg, (n, 3)) against the attitude of the IMU's
+    own axes (the vehicle's truth turned by the unstated mount about down): what navd
+    reports with no [imu] mount_yaw_deg."""
+    from navd.core.rotation import euler_to_mat_into, mat_to_euler
+
+    tt = run.truth_t_us * 1e-6
+    idx = np.clip(np.searchsorted(tt, r.t_s), 0, len(tt) - 1)
+    rz = np.zeros((3, 3))
+    euler_to_mat_into(rz, 0.0, 0.0, math.radians(mount_deg))
+    est = run.truth_euler[idx] + np.radians(r.err_deg)
+    imu = np.array([mat_to_euler(run.truth_mat_nb[i] @ rz) for i in idx])
+    return np.degrees((est - imu + math.pi) % (2.0 * math.pi) - math.pi)
+
+
+def test_an_imu_turned_on_the_vehicle_leaves_the_course_alone() -> None:
+    """GIVEN car480 with its IMU turned by 90 deg about down and no [imu] mount_yaw_deg
+    (default config), seeds 1-2 (before: the course held the IMU's yaw 90 deg off its own
+    axes, flagged aligned at sigma 0.1 deg, and bent roll and pitch 4-8 deg RMS, 28-66 % of
+    the instants beyond 3 sigma), THEN the IMU's accelerations show its yaw between forward
+    and backward, counted once (course_not_heading_imu; the status names the mount), and
+    from 150 s on roll and pitch of the IMU's axes are within 1.5 deg RMS and within
+    3 sigma at >= 99 % of the instants, and no aligned heading is 30 deg off."""
+    for seed in (1, 2):
+        run = generate(load_scenario("car480", {"imu.mount_yaw_deg": 90.0}), seed=seed,
+                       progress=False)
+        r = rb.score_sim(run, "ground")
+        assert r.counters.get("course_not_heading_imu", 0) == 1, seed
+        e = _imu_errors(run, r, 90.0)
+        late = r.t_s >= 150.0
+        tilt = e[late, :2]
+        assert np.all(np.sqrt(np.mean(tilt ** 2, axis=0)) < 1.5), (seed, tilt.std(0))
+        assert (np.abs(tilt) > 3.0 * r.sd_deg[late, :2]).mean() <= 0.01, seed
+        al = r.aligned[late]
+        assert al.any() and np.abs(e[late, 2][al]).max() < 30.0, seed

@@ -34,11 +34,23 @@ _R_EARTH = 6.37e6
 
 
 def _exercise() -> None:
-    """Push a synthetic drive through a default estimator so its kernels get compiled."""
+    """Push a synthetic drive through a default estimator so its kernels get compiled, and
+    through one with a yaw bank: a ground vehicle starts one mid-run when its IMU turns out
+    to be turned on it (core/aiding/gnss_heading.py), and must not wait for numba then."""
+    from navd.config import NavConfig, load_config
     from navd.core.estimator import Estimator
-    from navd.types import GnssSample, ImuSample
 
     est = Estimator()
+    t_us = _drive(est)
+    exercise_lane(est, t_us)
+    banked = NavConfig.from_tables(load_config(None, ["yaw_bank.enabled=on"])).estimator
+    _drive(Estimator(banked))
+
+
+def _drive(est: Any) -> int:
+    """The synthetic drive through ``est``; returns the last IMU stamp, us."""
+    from navd.types import GnssSample, ImuSample
+
     lat0, lon0, speed = 0.6, 1.9, 10.0
     for k in range(1, 1501):
         t_us = k * _DT_US
@@ -53,7 +65,7 @@ def _exercise() -> None:
                                 0.0, 2.0, 3.0, 0.1))
         if k % 20 == 0:
             est.solution()
-    exercise_lane(est, k * _DT_US)
+    return k * _DT_US
 
 
 def exercise_lane(est: Any, t_us: int) -> None:

@@ -156,6 +156,12 @@ class GnssAiding:
             # our later corrections taken out) and when (s; travel_direction.py: reversing
             # told from a yaw 180 deg off); None before a verdict (ground and boat profiles)
             "yaw_error_by_imu_deg": self._imu_yaw_error(),
+            # the IMU's x axis from the vehicle's course when the IMU's accelerations put
+            # it 60-120 deg off (deg, right +: an IMU turned on the vehicle; the course is
+            # then not used); None while never
+            "imu_yaw_on_vehicle_deg": (None if math.isnan(self.course.imu_yaw_on_vehicle)
+                                       else round(math.degrees(
+                                           self.course.imu_yaw_on_vehicle), 1)),
             # the gyro-bias corrections' chi-square(3) statistic over its last 30 s (about 3
             # when consistent; above 16.3 the walk is raised); None before the first
             "gyro_bias_corrections_z": (round(self.adaptive.corrections_z, 2)

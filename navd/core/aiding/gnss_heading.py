@@ -56,6 +56,10 @@ Arr = npt.NDArray[np.float64]
 # a yaw set from the course takes the course + 180 deg when the IMU said this lately that
 # the vehicle moves backwards (travel_direction.py), s
 _DIRECTION_RECENT_S = 10.0
+# the IMU's verdict that turned the yaw was at most this old, s (as a flipped one)
+_FLIPPED_RECENT_S = 5.0
+# the yaw's sigma after it was turned to the IMU's verdict (its scatter is ~7 deg), rad
+_IMU_TURN_SD = 20.0 * math.pi / 180.0
 
 
 @jit
@@ -174,6 +178,8 @@ class CourseHeading:
         self.rejects = 0
         # this epoch's course row is the reversed course (a reversing the IMU confirmed)
         self.backward = False
+        # the IMU's x axis from the course when the IMU showed it turned, rad (nan: never)
+        self.imu_yaw_on_vehicle = math.nan
         # the sideslip per lateral acceleration (course = heading + gain * a_lat for a car
         # whose tyres slip in turns), the z gyro's scale error and a boat's water current,
         # learnt from the course innovations
@@ -270,6 +276,10 @@ class CourseHeading:
                            "disabled: traditional mode" if c.filter.mode == "traditional"
                            else "disabled: fixed_wing without crab allowance")
             return False
+        if self.align.course_off:
+            self.status = ("off: the IMU's yaw is not the course's (an IMU turned on the "
+                           "vehicle? [imu] mount_yaw_deg)")
+            return False
         # through the water (boat), over the ground (others: the current is 0)
         wn, we = self.learn.water(g.vel_n, g.vel_e)
         speed = math.hypot(wn, we)
@@ -328,6 +338,9 @@ class CourseHeading:
         cfg = self.cfg
         al = self.align
         wn, we = self.learn.water(g.vel_n, g.vel_e)
+        if (al.course_checks and not al.course_off and al.yaw_set
+                and self.direction.yaw_between_since(g.t_us * 1e-6 - _FLIPPED_RECENT_S)):
+            self._turn_to_imu(est)
         al.check_course(est, g.t_us, wn, we, s_sd, self.learn, self.sd_beta, self.direction)
         if al.realign_requested:
             # backwards for longer than reversing explains: the yaw is wrong by > 90 deg
@@ -558,6 +571,42 @@ class CourseHeading:
             m = est.mat_nb
             self.yaw_known(float(est.P[2, 2]), math.atan2(m[1, 0], m[0, 0]),
                            est.t_us * 1e-6, rate_var_down(est))
+
+    def _turn_to_imu(self, est: Estimator) -> None:
+        """The IMU's accelerations put the yaw 60-120 deg off the course it follows: the
+        course is not this IMU's heading (it is mounted turned on the vehicle, unstated;
+        before, a 90 deg mount was flagged aligned 90 deg off with sigma 0.1 deg, its roll
+        and pitch 5-7 deg RMS, 20-53 % beyond 3 sigma).  The yaw is turned to what the
+        IMU implies, with the heading prior's sigma, and the course is left alone for the
+        rest of the run (counted ``course_not_heading_imu``; status
+        ``imu_yaw_on_vehicle_deg``)."""
+        err = self.direction.yaw_error
+        self.imu_yaw_on_vehicle = err  # the IMU's x axis from the course, rad (right +)
+        e = est.work[4]
+        t = est.work[5]
+        exp_into(e, 0.0, 0.0, err)
+        mul3_into(t, e, est.mat_nb)
+        est.mat_nb[:, :] = t
+        st.turn_tilt_cov(est.buf, err)
+        P = est.P
+        P[2, :] = 0.0
+        P[:, 2] = 0.0
+        P[2, 2] = max(self.cfg.init.heading_sd, _IMU_TURN_SD) ** 2
+        # the fixes bent tilt and accelerometer bias to make a turned IMU's accelerations
+        # fit the course: their priors again (their sigma claimed what was not so)
+        tilt2 = self.cfg.init.tilt_sd ** 2
+        ba2 = self.cfg.imu.accel_bias_sd ** 2
+        for i in range(2):
+            P[i, i] += tilt2
+        for i in range(12, 15):
+            P[i, i] += ba2
+        self.rejects = 0
+        self.align.course_not_heading(est)
+        # the heading from here is what accelerations show, as on a multirotor: searched for
+        # by a yaw bank, which holds the yaw (and tilt and biases while accelerating) out of
+        # the fixes until it is trusted and owns the flag
+        est.start_yaw_bank()
+        est.counters["course_not_heading_imu"] += 1
 
     def align_yaw(self, est: Estimator, vn: float, ve: float, s_sd: float,
                   extra_sd: float = 0.0) -> None:

@@ -207,6 +207,13 @@ class TravelDirection:
         return bool(math.isfinite(s[_ERR_T]) and abs(s[_ERR]) < _RIGHT
                     and p22 < _STALE * _STALE)
 
+    def yaw_between_since(self, t0_s: float) -> bool:
+        """Whether the IMU showed the yaw 60-120 deg off at or after ``t0_s``: neither
+        forward nor backward (never seen on the benchmark's ground and boat cases, seeds
+        1-3; an IMU turned on the vehicle, unstated, shows its mounting)."""
+        s = self._s
+        return bool(s[_ERR_T] >= t0_s and _RIGHT <= abs(s[_ERR]) <= _FLIP)
+
     def yaw_flipped_since(self, t0_s: float) -> bool:
         """Whether the IMU showed the yaw about 180 deg off at or after ``t0_s``."""
         s = self._s
