@@ -58,7 +58,8 @@ Arr = npt.NDArray[np.float64]
 _DIRECTION_RECENT_S = 10.0
 # the IMU's verdict that turned the yaw was at most this old, s (as a flipped one)
 _FLIPPED_RECENT_S = 5.0
-# the yaw's sigma after it was turned to the IMU's verdict (its scatter is ~7 deg), rad
+# the yaw's sigma after it was turned to the IMU's verdict, rad: a verdict made while the
+# course bent tilt and bias was 4-25 deg off the mount (a 45 deg mount read 64-77 deg)
 _IMU_TURN_SD = 20.0 * math.pi / 180.0
 
 
@@ -404,9 +405,7 @@ class CourseHeading:
         for the velocity-alone update (-1: none); ``hold_mask``: further consider states
         (bit i: state i).
         """
-        cnt = est.counters
-        H, z, P = est.meas_H, est.meas_z, est.P
-        cfg = self.cfg
+        z = est.meas_z
         al = self.align
         lrn = self.learn
         use_course = self._water_checks(est, g, s_sd)
@@ -446,14 +445,7 @@ class CourseHeading:
         extra = (self.noise.scale - 1.0) * r_white
         sd_beta = math.sqrt(sd_b2 + extra)
         # course alone first: its own gate decides whether it joins the velocity update
-        st.course_row(est.buf, 3, vn_c, ve_c, s_sd, sd_beta)
-        if swapped:
-            est.state_restore()
-        zc = z[3]
-        sc = H[3, 0] * H[3, 0] * P[0, 0] + H[3, 1] * H[3, 1] * P[1, 1]
-        sc += 2.0 * H[3, 0] * H[3, 1] * P[0, 1] + P[2, 2]
-        sc -= 2.0 * (H[3, 0] * P[0, 2] + H[3, 1] * P[1, 2])
-        sc += est.meas_R[3, 3]  # the course's own noise: speed, sideslip, lever arm
+        zc, sc = self._row(est, vn_c, ve_c, s_sd, sd_beta, swapped)
         course_ok = (not self._gating) or zc * zc / sc <= self._gate1
         m_nb = est.mat_nb
         if self.noise.row(g.t_us * 1e-6, zc, r_white, sc, math.atan2(m_nb[1, 0], m_nb[0, 0]),
@@ -462,15 +454,39 @@ class CourseHeading:
             self._noise_changed(est)
         self._learn_epoch(est, g, zc, sc, a_lat, float(est.meas_R[3, 3])
                           - (sd_beta * sd_beta - self.sd_beta * self.sd_beta))
+        self._fuse_row(est, g, zc, sc, course_ok, s_sd, hold, hold_mask, vn_c, ve_c,
+                       "course")
+
+    def _row(self, est: Estimator, vn_c: float, ve_c: float, s_sd: float, sd_beta: float,
+             swapped: bool) -> tuple[float, float]:
+        """Write the course row of (vn_c, ve_c) m/s (row 3, beside the velocity's) and
+        return its innovation (rad) and variance (rad^2, from the attitude block of P and
+        the row's own noise: speed, sideslip, lever arm)."""
+        H, z, P = est.meas_H, est.meas_z, est.P
+        st.course_row(est.buf, 3, vn_c, ve_c, s_sd, sd_beta)
+        if swapped:
+            est.state_restore()
+        sc = H[3, 0] * H[3, 0] * P[0, 0] + H[3, 1] * H[3, 1] * P[1, 1]
+        sc += 2.0 * H[3, 0] * H[3, 1] * P[0, 1] + P[2, 2]
+        sc -= 2.0 * (H[3, 0] * P[0, 2] + H[3, 1] * P[1, 2])
+        return float(z[3]), sc + float(est.meas_R[3, 3])
+
+    def _fuse_row(self, est: Estimator, g: GnssSample, zc: float, sc: float, ok: bool,
+                  s_sd: float, hold: int, hold_mask: int, vn_c: float, ve_c: float,
+                  name: str) -> None:
+        """Velocity and course row together when the row passed its own gate (``ok``), else
+        the velocity alone; counted ``<name>_accepted`` / ``_rejected``, and a run of
+        ``[heading] reset_after`` refusals sets the yaw to the course again."""
+        cnt = est.counters
         rec = est.innov[INNOV_COURSE]
         rec[0] = zc
         rec[INNOV_NIS] = zc * zc / sc
-        if course_ok:
+        if ok:
             nis = est.fuse_block(4, self._gate4, "vel_course")
             est.record_innovation(INNOV_VEL, 0, 3, nis)
             if nis >= 0.0:
                 rec[INNOV_FLAG] = ACCEPTED
-                cnt["course_accepted"] += 1
+                cnt[name + "_accepted"] += 1
                 self.rejects = 0
                 return
             # the joint block failed: fall back to velocity alone
@@ -478,11 +494,12 @@ class CourseHeading:
             self._velocity_alone(est, g, s_sd, hold, hold_mask)
             return
         rec[INNOV_FLAG] = REJECTED
-        cnt["course_rejected"] += 1
+        cnt[name + "_rejected"] += 1
         self.rejects += 1
         self._velocity_alone(est, g, s_sd, hold, hold_mask)
-        if self.rejects >= cfg.heading.reset_after:
+        if self.rejects >= self.cfg.heading.reset_after:
             # persistently inconsistent: the yaw is wrong beyond the linear model; reset it
+            # (align_yaw takes the side the IMU implies)
             self.align_yaw(est, vn_c, ve_c, s_sd)
             cnt["heading_reset"] += 1
 
@@ -493,43 +510,14 @@ class CourseHeading:
         Nothing is learnt from it (the sideslip and the course-noise tests model forward
         driving; a reversing car steers from its other end): the learnt slip enters only
         as variance, with the course-noise scale as it stands."""
-        cnt = est.counters
-        H, z, P = est.meas_H, est.meas_z, est.P
         a_lat = self.learn.a_lat
         slip = float(self.learn.x[K]) * a_lat
         sd_b2 = (self.sd_beta * self.sd_beta + self._course_var(est, a_lat) + slip * slip)
         r_white = s_sd * s_sd / max(vn_c * vn_c + ve_c * ve_c, 1e-6) + sd_b2
         sd_beta = math.sqrt(sd_b2 + (self.noise.scale - 1.0) * r_white)
-        st.course_row(est.buf, 3, -vn_c, -ve_c, s_sd, sd_beta)
-        if swapped:
-            est.state_restore()
-        zc = z[3]
-        sc = H[3, 0] * H[3, 0] * P[0, 0] + H[3, 1] * H[3, 1] * P[1, 1]
-        sc += 2.0 * H[3, 0] * H[3, 1] * P[0, 1] + P[2, 2]
-        sc -= 2.0 * (H[3, 0] * P[0, 2] + H[3, 1] * P[1, 2])
-        sc += est.meas_R[3, 3]
-        rec = est.innov[INNOV_COURSE]
-        rec[0] = zc
-        rec[INNOV_NIS] = zc * zc / sc
-        if (not self._gating) or zc * zc / sc <= self._gate1:
-            nis = est.fuse_block(4, self._gate4, "vel_course")
-            est.record_innovation(INNOV_VEL, 0, 3, nis)
-            if nis >= 0.0:
-                rec[INNOV_FLAG] = ACCEPTED
-                cnt["course_reversed_accepted"] += 1
-                self.rejects = 0
-                return
-            rec[INNOV_FLAG] = REJECTED if nis != -math.inf else SINGULAR
-        else:
-            rec[INNOV_FLAG] = REJECTED
-        cnt["course_reversed_rejected"] += 1
-        self.rejects += 1
-        self._velocity_alone(est, g, s_sd, hold, hold_mask)
-        if self.rejects >= self.cfg.heading.reset_after:
-            # persistently inconsistent: set the yaw to the course (align_yaw takes the
-            # side the IMU implies)
-            self.align_yaw(est, vn_c, ve_c, s_sd)
-            cnt["heading_reset"] += 1
+        zc, sc = self._row(est, -vn_c, -ve_c, s_sd, sd_beta, swapped)
+        self._fuse_row(est, g, zc, sc, (not self._gating) or zc * zc / sc <= self._gate1,
+                       s_sd, hold, hold_mask, vn_c, ve_c, "course_reversed")
 
     def _noise_changed(self, est: Estimator) -> None:
         """A course-noise test ended (course_noise.py): count the scale switching on or off;
@@ -576,10 +564,10 @@ class CourseHeading:
         """The IMU's accelerations put the yaw 60-120 deg off the course it follows: the
         course is not this IMU's heading (it is mounted turned on the vehicle, unstated;
         before, a 90 deg mount was flagged aligned 90 deg off with sigma 0.1 deg, its roll
-        and pitch 5-7 deg RMS, 20-53 % beyond 3 sigma).  The yaw is turned to what the
-        IMU implies, with the heading prior's sigma, and the course is left alone for the
-        rest of the run (counted ``course_not_heading_imu``; status
-        ``imu_yaw_on_vehicle_deg``)."""
+        and pitch 4-8 deg RMS, 28-66 % of the instants beyond 3 sigma).  The yaw is turned
+        to what the IMU implies with a sigma of ``_IMU_TURN_SD`` (at least the heading
+        prior's), and the course is left alone for the rest of the run (counted
+        ``course_not_heading_imu``; status ``imu_yaw_on_vehicle_deg``)."""
         err = self.direction.yaw_error
         self.imu_yaw_on_vehicle = err  # the IMU's x axis from the course, rad (right +)
         e = est.work[4]

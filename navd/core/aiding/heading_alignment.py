@@ -169,8 +169,9 @@ class HeadingAlignment:
 
     def course_not_heading(self, est: Estimator) -> None:
         """The course is not this IMU's heading (its yaw was just set from what the IMU's
-        accelerations imply): course checks end, the flag waits for the observability rule
-        (the yaw sigma small for a while), as on profiles without a course."""
+        accelerations imply): course checks end and the flag drops; the yaw bank the caller
+        starts owns it from then on (without one, the observability rule would: the yaw
+        sigma small for a while, as on profiles without a course)."""
         s = self._s
         self.course_off = True
         s[_ORIGIN] = _OBSERVED
