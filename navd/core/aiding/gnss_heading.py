@@ -455,7 +455,7 @@ class CourseHeading:
         self._learn_epoch(est, g, zc, sc, a_lat, float(est.meas_R[3, 3])
                           - (sd_beta * sd_beta - self.sd_beta * self.sd_beta))
         self._fuse_row(est, g, zc, sc, course_ok, s_sd, hold, hold_mask, vn_c, ve_c,
-                       "course")
+                       "course_accepted", "course_rejected")
 
     def _row(self, est: Estimator, vn_c: float, ve_c: float, s_sd: float, sd_beta: float,
              swapped: bool) -> tuple[float, float]:
@@ -473,10 +473,11 @@ class CourseHeading:
 
     def _fuse_row(self, est: Estimator, g: GnssSample, zc: float, sc: float, ok: bool,
                   s_sd: float, hold: int, hold_mask: int, vn_c: float, ve_c: float,
-                  name: str) -> None:
+                  accepted: str, rejected: str) -> None:
         """Velocity and course row together when the row passed its own gate (``ok``), else
-        the velocity alone; counted ``<name>_accepted`` / ``_rejected``, and a run of
-        ``[heading] reset_after`` refusals sets the yaw to the course again."""
+        the velocity alone; counted ``accepted`` / ``rejected`` (names, not composed: no
+        string is made per epoch), and a run of ``[heading] reset_after`` refusals sets the
+        yaw to the course again."""
         cnt = est.counters
         rec = est.innov[INNOV_COURSE]
         rec[0] = zc
@@ -486,7 +487,7 @@ class CourseHeading:
             est.record_innovation(INNOV_VEL, 0, 3, nis)
             if nis >= 0.0:
                 rec[INNOV_FLAG] = ACCEPTED
-                cnt[name + "_accepted"] += 1
+                cnt[accepted] += 1
                 self.rejects = 0
                 return
             # the joint block failed: fall back to velocity alone
@@ -494,7 +495,7 @@ class CourseHeading:
             self._velocity_alone(est, g, s_sd, hold, hold_mask)
             return
         rec[INNOV_FLAG] = REJECTED
-        cnt[name + "_rejected"] += 1
+        cnt[rejected] += 1
         self.rejects += 1
         self._velocity_alone(est, g, s_sd, hold, hold_mask)
         if self.rejects >= self.cfg.heading.reset_after:
@@ -517,7 +518,8 @@ class CourseHeading:
         sd_beta = math.sqrt(sd_b2 + (self.noise.scale - 1.0) * r_white)
         zc, sc = self._row(est, -vn_c, -ve_c, s_sd, sd_beta, swapped)
         self._fuse_row(est, g, zc, sc, (not self._gating) or zc * zc / sc <= self._gate1,
-                       s_sd, hold, hold_mask, vn_c, ve_c, "course_reversed")
+                       s_sd, hold, hold_mask, vn_c, ve_c, "course_reversed_accepted",
+                       "course_reversed_rejected")
 
     def _noise_changed(self, est: Estimator) -> None:
         """A course-noise test ended (course_noise.py): count the scale switching on or off;
