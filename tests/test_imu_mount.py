@@ -164,3 +164,24 @@ def test_replay_says_when_the_imu_is_pitched_on_the_car(tmp_path: Path,
     assert m is not None and abs(float(m.group(1)) - 2.0) <= 0.6, line
     assert replay_main([*args, "--set=imu.mount_pitch_deg=2"]) == 0
     assert "pitched on the vehicle" not in capsys.readouterr().err
+
+
+def test_replay_says_when_the_imu_is_turned_on_the_car(tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]
+                                                      ) -> None:
+    """GIVEN the car drive (240 s) with its IMU turned 90 deg about down, written as replay
+    CSVs, WHEN ``navd replay`` runs it without a mount, THEN it ends with one line giving
+    the IMU's heading from the course (90 deg within 30: the verdict the course bent) and
+    the setting to write; with ``imu.mount_yaw_deg=90`` there is no such line."""
+    run = generate(load_scenario("car480", {"duration_s": 240.0, "imu.mount_yaw_deg": 90.0}),
+                   seed=1, progress=False)
+    run.write_csv(tmp_path)
+    args = ["--imu", str(tmp_path / "imu.csv"), "--gnss", str(tmp_path / "gnss.csv"),
+            "--out", str(tmp_path / "sol.csv"), "--quiet", "--set=filter.profile=ground"]
+    assert replay_main(args) == 0
+    line = [x for x in capsys.readouterr().err.splitlines() if "turned on the vehicle" in x]
+    assert len(line) == 1, line
+    m = re.search(r"heading (-?[0-9]+) deg from .*mount_yaw_deg=(-?[0-9]+)", line[0])
+    assert m is not None and abs(float(m.group(1)) - 90.0) <= 30.0, line
+    assert replay_main([*args, "--set=imu.mount_yaw_deg=90"]) == 0
+    assert "turned on the vehicle" not in capsys.readouterr().err

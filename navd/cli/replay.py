@@ -446,7 +446,8 @@ def _replay_log(a: argparse.Namespace) -> int:
 
 def _mount_hint(est: Estimator) -> None:
     """Say so when the velocity said the IMU is pitched on the (ground) vehicle
-    (core/aiding/mount_check.py): the one mounting a replay can find out for its user; and
+    (core/aiding/mount_check.py), or the IMU's accelerations that it is turned on it
+    (core/aiding/gnss_heading.py: its yaw 60-120 deg from the course); and
     when the course of a "ground" vehicle carried a current (core/aiding/course_learner.py:
     a boat, or a plane, run as a car)."""
     w = est.gnss.course.watch
@@ -455,6 +456,13 @@ def _mount_hint(est: Estimator) -> None:
               f"as a current of ~{math.hypot(w.x[CN], w.x[CE]):.1f} m/s would make it (a boat "
               "in a current? --set filter.profile=boat; a plane in wind: fixed_wing); as a "
               "ground vehicle the heading and its sigma follow the course", file=sys.stderr)
+    turned = est.status().get("imu_yaw_on_vehicle_deg")
+    if est.counters.get("course_not_heading_imu") and isinstance(turned, (int, float)):
+        print(f"navd replay: the IMU's accelerations put its heading {turned:.0f} deg from "
+              f"the GNSS course: the IMU is turned on the vehicle? (--set "
+              f"imu.mount_yaw_deg={turned:.0f}, or the mounting's measured angle; until it "
+              "is set the course is not used from then on and the attitude is that of the "
+              "IMU's axes)", file=sys.stderr)
     pitch = est.status().get("imu_pitch_on_vehicle_deg")
     if est.counters.get("imu_pitch_mount_suspect") and isinstance(pitch, list):
         print(f"navd replay: driving straight, the velocity rose {pitch[0]:.2f} +- "
