@@ -145,6 +145,17 @@ def test_a_car_imu_pitched_on_the_car_is_told_by_the_velocity(stated: bool) -> N
         assert abs(mean - 2.0) <= min(0.6, 3.0 * sd) and flagged == 1, (pitch, flagged)
 
 
+def _replay_args(tmp_path: Path, mount: dict[str, float]) -> list[str]:
+    """The car drive (240 s, seed 1) with the IMU mounted as ``mount`` (scenario keys),
+    written as replay CSVs into ``tmp_path``; the ``navd replay`` arguments for it (ground
+    profile, no mount stated)."""
+    run = generate(load_scenario("car480", {"duration_s": 240.0, **mount}), seed=1,
+                   progress=False)
+    run.write_csv(tmp_path)
+    return ["--imu", str(tmp_path / "imu.csv"), "--gnss", str(tmp_path / "gnss.csv"),
+            "--out", str(tmp_path / "sol.csv"), "--quiet", "--set=filter.profile=ground"]
+
+
 def test_replay_says_when_the_imu_is_pitched_on_the_car(tmp_path: Path,
                                                        capsys: pytest.CaptureFixture[str]
                                                        ) -> None:
@@ -152,11 +163,7 @@ def test_replay_says_when_the_imu_is_pitched_on_the_car(tmp_path: Path,
     WHEN ``navd replay`` runs it without a mount, and with ``imu.mount_pitch_deg=2``,
     THEN the first ends with a line giving the pitch (2 deg within 0.6) and the setting
     to write; the second has no such line."""
-    run = generate(load_scenario("car480", {"duration_s": 240.0, "imu.mount_pitch_deg": 2.0}),
-                   seed=1, progress=False)
-    run.write_csv(tmp_path)
-    args = ["--imu", str(tmp_path / "imu.csv"), "--gnss", str(tmp_path / "gnss.csv"),
-            "--out", str(tmp_path / "sol.csv"), "--quiet", "--set=filter.profile=ground"]
+    args = _replay_args(tmp_path, {"imu.mount_pitch_deg": 2.0})
     assert replay_main(args) == 0
     line = [x for x in capsys.readouterr().err.splitlines() if "pitched on the vehicle" in x]
     assert len(line) == 1, line
@@ -173,11 +180,7 @@ def test_replay_says_when_the_imu_is_turned_on_the_car(tmp_path: Path,
     CSVs, WHEN ``navd replay`` runs it without a mount, THEN it ends with one line giving
     the IMU's heading from the course (90 deg within 30: the verdict the course bent) and
     the setting to write; with ``imu.mount_yaw_deg=90`` there is no such line."""
-    run = generate(load_scenario("car480", {"duration_s": 240.0, "imu.mount_yaw_deg": 90.0}),
-                   seed=1, progress=False)
-    run.write_csv(tmp_path)
-    args = ["--imu", str(tmp_path / "imu.csv"), "--gnss", str(tmp_path / "gnss.csv"),
-            "--out", str(tmp_path / "sol.csv"), "--quiet", "--set=filter.profile=ground"]
+    args = _replay_args(tmp_path, {"imu.mount_yaw_deg": 90.0})
     assert replay_main(args) == 0
     line = [x for x in capsys.readouterr().err.splitlines() if "turned on the vehicle" in x]
     assert len(line) == 1, line
