@@ -41,9 +41,10 @@ from navd.core.aiding.base import (
 )
 from navd.core.aiding.course_learner import CourseLearner, K, S
 from navd.core.aiding.course_noise import CourseNoise
-from navd.core.aiding.heading_alignment import HeadingAlignment
+from navd.core.aiding.heading_alignment import FLIPPED_RECENT_S, HeadingAlignment
 from navd.core.aiding.travel_direction import TravelDirection
 from navd.core.chi2 import chi2_quantile
+from navd.core.errors import I_BA
 from navd.core.kalman import SF_SCALE_Z, SF_YAW_Z
 from navd.core.rotation import exp_into, mat_to_euler, mul3_into
 from navd.types import GnssSample
@@ -56,8 +57,6 @@ Arr = npt.NDArray[np.float64]
 # a yaw set from the course takes the course + 180 deg when the IMU said this lately that
 # the vehicle moves backwards (travel_direction.py), s
 _DIRECTION_RECENT_S = 10.0
-# the IMU's verdict that turned the yaw was at most this old, s (as a flipped one)
-_FLIPPED_RECENT_S = 5.0
 # the yaw's sigma after it was turned to the IMU's verdict, rad: a verdict made while the
 # course bent tilt and bias was 4-25 deg off the mount (a 45 deg mount read 64-77 deg)
 _IMU_TURN_SD = 20.0 * math.pi / 180.0
@@ -151,6 +150,21 @@ def course_may_align(cfg: EstimatorConfig, bank: bool) -> bool:
 def course_sd(speed_sd_mps: float, speed_h_mps: float) -> float:
     """1-sigma of the course from a per-axis speed accuracy, rad (sigma_v / |v_h|)."""
     return speed_sd_mps / speed_h_mps
+
+
+def _turn_yaw(est: Estimator, d: float) -> None:
+    """Turn the attitude about down by ``d`` rad (yaw + d), the tilt error with it
+    (navd.core.state.turn_tilt_cov), and forget the yaw's covariance (row and column 2 of
+    P, its variance left 0 for the caller to set)."""
+    e = est.work[4]
+    t = est.work[5]
+    exp_into(e, 0.0, 0.0, d)
+    mul3_into(t, e, est.mat_nb)
+    est.mat_nb[:, :] = t
+    st.turn_tilt_cov(est.buf, d)
+    P = est.P
+    P[2, :] = 0.0
+    P[:, 2] = 0.0
 
 
 class CourseHeading:
@@ -340,7 +354,7 @@ class CourseHeading:
         al = self.align
         wn, we = self.learn.water(g.vel_n, g.vel_e)
         if (al.course_checks and not al.course_off and al.yaw_set
-                and self.direction.yaw_between_since(g.t_us * 1e-6 - _FLIPPED_RECENT_S)):
+                and self.direction.yaw_between_since(g.t_us * 1e-6 - FLIPPED_RECENT_S)):
             self._turn_to_imu(est)
         al.check_course(est, g.t_us, wn, we, s_sd, self.learn, self.sd_beta, self.direction)
         if al.realign_requested:
@@ -446,7 +460,6 @@ class CourseHeading:
         sd_beta = math.sqrt(sd_b2 + extra)
         # course alone first: its own gate decides whether it joins the velocity update
         zc, sc = self._row(est, vn_c, ve_c, s_sd, sd_beta, swapped)
-        course_ok = (not self._gating) or zc * zc / sc <= self._gate1
         m_nb = est.mat_nb
         if self.noise.row(g.t_us * 1e-6, zc, r_white, sc, math.atan2(m_nb[1, 0], m_nb[0, 0]),
                           float(est.buf[st.Q + 2]), a_lat, lrn.P, bias_down(est),
@@ -454,8 +467,8 @@ class CourseHeading:
             self._noise_changed(est)
         self._learn_epoch(est, g, zc, sc, a_lat, float(est.meas_R[3, 3])
                           - (sd_beta * sd_beta - self.sd_beta * self.sd_beta))
-        self._fuse_row(est, g, zc, sc, course_ok, s_sd, hold, hold_mask, vn_c, ve_c,
-                       "course_accepted", "course_rejected")
+        self._fuse_row(est, g, zc, sc, s_sd, hold, hold_mask, vn_c, ve_c, "course_accepted",
+                       "course_rejected")
 
     def _row(self, est: Estimator, vn_c: float, ve_c: float, s_sd: float, sd_beta: float,
              swapped: bool) -> tuple[float, float]:
@@ -471,18 +484,18 @@ class CourseHeading:
         sc -= 2.0 * (H[3, 0] * P[0, 2] + H[3, 1] * P[1, 2])
         return float(z[3]), sc + float(est.meas_R[3, 3])
 
-    def _fuse_row(self, est: Estimator, g: GnssSample, zc: float, sc: float, ok: bool,
-                  s_sd: float, hold: int, hold_mask: int, vn_c: float, ve_c: float,
-                  accepted: str, rejected: str) -> None:
-        """Velocity and course row together when the row passed its own gate (``ok``), else
-        the velocity alone; counted ``accepted`` / ``rejected`` (names, not composed: no
-        string is made per epoch), and a run of ``[heading] reset_after`` refusals sets the
-        yaw to the course again."""
+    def _fuse_row(self, est: Estimator, g: GnssSample, zc: float, sc: float, s_sd: float,
+                  hold: int, hold_mask: int, vn_c: float, ve_c: float, accepted: str,
+                  rejected: str) -> None:
+        """Velocity and course row together when the row (innovation ``zc`` rad, variance
+        ``sc`` rad^2) passes its own chi-square(1) gate, else the velocity alone; counted
+        ``accepted`` / ``rejected`` (names, not composed: no string is made per epoch), and a
+        run of ``[heading] reset_after`` refusals sets the yaw to the course again."""
         cnt = est.counters
         rec = est.innov[INNOV_COURSE]
         rec[0] = zc
         rec[INNOV_NIS] = zc * zc / sc
-        if ok:
+        if (not self._gating) or zc * zc / sc <= self._gate1:
             nis = est.fuse_block(4, self._gate4, "vel_course")
             est.record_innovation(INNOV_VEL, 0, 3, nis)
             if nis >= 0.0:
@@ -517,9 +530,8 @@ class CourseHeading:
         r_white = s_sd * s_sd / max(vn_c * vn_c + ve_c * ve_c, 1e-6) + sd_b2
         sd_beta = math.sqrt(sd_b2 + (self.noise.scale - 1.0) * r_white)
         zc, sc = self._row(est, -vn_c, -ve_c, s_sd, sd_beta, swapped)
-        self._fuse_row(est, g, zc, sc, (not self._gating) or zc * zc / sc <= self._gate1,
-                       s_sd, hold, hold_mask, vn_c, ve_c, "course_reversed_accepted",
-                       "course_reversed_rejected")
+        self._fuse_row(est, g, zc, sc, s_sd, hold, hold_mask, vn_c, ve_c,
+                       "course_reversed_accepted", "course_reversed_rejected")
 
     def _noise_changed(self, est: Estimator) -> None:
         """A course-noise test ended (course_noise.py): count the scale switching on or off;
@@ -572,15 +584,8 @@ class CourseHeading:
         ``course_not_heading_imu``; status ``imu_yaw_on_vehicle_deg``)."""
         err = self.direction.yaw_error
         self.imu_yaw_on_vehicle = err  # the IMU's x axis from the course, rad (right +)
-        e = est.work[4]
-        t = est.work[5]
-        exp_into(e, 0.0, 0.0, err)
-        mul3_into(t, e, est.mat_nb)
-        est.mat_nb[:, :] = t
-        st.turn_tilt_cov(est.buf, err)
+        _turn_yaw(est, err)
         P = est.P
-        P[2, :] = 0.0
-        P[:, 2] = 0.0
         P[2, 2] = max(self.cfg.init.heading_sd, _IMU_TURN_SD) ** 2
         # the fixes bent tilt and accelerometer bias to make a turned IMU's accelerations
         # fit the course: their priors again (their sigma claimed what was not so)
@@ -588,7 +593,7 @@ class CourseHeading:
         ba2 = self.cfg.imu.accel_bias_sd ** 2
         for i in range(2):
             P[i, i] += tilt2
-        for i in range(12, 15):
+        for i in range(I_BA, I_BA + 3):
             P[i, i] += ba2
         self.rejects = 0
         self.align.course_not_heading(est)
@@ -615,17 +620,8 @@ class CourseHeading:
             # behind the course: the vehicle backs up
             chi = (chi + 2.0 * math.pi) % (2.0 * math.pi) - math.pi
             est.counters["heading_course_behind"] += 1
-        d = (yaw - chi + math.pi) % (2.0 * math.pi) - math.pi
-        e = est.work[4]
-        t = est.work[5]
-        exp_into(e, 0.0, 0.0, -d)
-        mul3_into(t, e, est.mat_nb)
-        est.mat_nb[:, :] = t
-        # the tilt error turns with the attitude (navd.core.state.turn_tilt_cov)
-        st.turn_tilt_cov(est.buf, -d)
+        _turn_yaw(est, -((yaw - chi + math.pi) % (2.0 * math.pi) - math.pi))
         P = est.P
-        P[2, :] = 0.0
-        P[:, 2] = 0.0
         sd = s_sd / math.hypot(vn, ve)
         P[2, 2] = self.yaw_set(
             sd * sd + self.sd_beta**2 + (1.0 * math.pi / 180.0) ** 2 + extra_sd**2,

@@ -84,7 +84,7 @@ _CONFIRM_S = 3.0  # ... spanning at least this long, s
 _WATCH_N = 5
 _WATCH_FLOOR = 5.0 * math.pi / 180.0  # rad: below this the mean never drops the flag
 # the IMU's accelerations showed the yaw 180 deg off within this: acted on at once, s
-_FLIPPED_RECENT_S = 5.0
+FLIPPED_RECENT_S = 5.0
 
 _NONE, _COURSE, _OBSERVED = 0, 1, 2
 # state array layout (no Python floats are rebound on the epoch path: the allocation test
@@ -233,7 +233,7 @@ class HeadingAlignment:
         yaw = math.atan2(m[1, 0], m[0, 0])
         d = ((yaw - math.atan2(ve, vn) + float(learn.x[K]) * a_lat + math.pi)
              % (2.0 * math.pi) - math.pi)
-        flipped = dirn.yaw_flipped_since(t - _FLIPPED_RECENT_S)
+        flipped = dirn.yaw_flipped_since(t - FLIPPED_RECENT_S)
         backward = abs(d) >= 0.5 * math.pi
         if backward and not flipped and dirn.yaw_right(float(est.P[2, 2])):
             # the IMU confirmed the yaw: reversing, however long (said once per run beyond
