@@ -26,7 +26,7 @@ run demo: kernels
 	$(BIN)/navd demo
 
 test: kernels
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --maxprocesses 4
 
 bench: kernels
 	$(BIN)/python benchmarks/table1.py --runs 3
