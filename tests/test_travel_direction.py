@@ -261,23 +261,27 @@ def _imu_errors(run: Any, r: Any, mount_deg: float) -> Any:
     return np.degrees((est - imu + math.pi) % (2.0 * math.pi) - math.pi)
 
 
-def test_an_imu_turned_on_the_vehicle_leaves_the_course_alone() -> None:
+def test_an_imu_turned_on_the_vehicle_has_its_yaw_on_the_vehicle_learnt() -> None:
     """GIVEN car480 with its IMU turned by 90 deg about down and no [imu] mount_yaw_deg
-    (default config), seeds 1-2 (before: the course held the IMU's yaw 90 deg off its own
-    axes, flagged aligned at sigma 0.1 deg, and bent roll and pitch 4-8 deg RMS, 28-66 % of
-    the instants beyond 3 sigma), THEN the IMU's accelerations show its yaw between forward
-    and backward, counted once (course_not_heading_imu; the status names the mount), and
-    from 150 s on roll and pitch of the IMU's axes are within 1.5 deg RMS and within
-    3 sigma at >= 99 % of the instants, and no aligned heading is 30 deg off."""
+    (default config), seeds 1-2 (before the IMU's yaw on the vehicle was learnt: the course
+    held the IMU's yaw 90 deg off its own axes, flagged aligned at sigma 0.1 deg; then, with
+    the course dropped, the heading from accelerations alone was 6.4-6.6 deg RMS, up to 25 %
+    of the aligned instants beyond 3 sigma), THEN the IMU's accelerations show its yaw
+    between forward and backward, counted once (course_not_heading_imu), and from 150 s on
+    the attitude of the IMU's axes is within 1.5 deg RMS in roll and pitch and 3 deg in
+    heading, every axis within 3 sigma at >= 99 % of the instants, and no aligned heading
+    is 6 deg off."""
     for seed in (1, 2):
         run = generate(load_scenario("car480", {"imu.mount_yaw_deg": 90.0}), seed=seed,
                        progress=False)
         r = rb.score_sim(run, "ground")
         assert r.counters.get("course_not_heading_imu", 0) == 1, seed
+        assert r.counters.get("imu_yaw_on_vehicle_learnt", 0) >= 10, seed
         e = _imu_errors(run, r, 90.0)
         late = r.t_s >= 150.0
-        tilt = e[late, :2]
-        assert np.all(np.sqrt(np.mean(tilt ** 2, axis=0)) < 1.5), (seed, tilt.std(0))
-        assert (np.abs(tilt) > 3.0 * r.sd_deg[late, :2]).mean() <= 0.01, seed
+        rms = np.sqrt(np.mean(e[late] ** 2, axis=0))
+        assert np.all(rms[:2] < 1.5) and rms[2] < 3.0, (seed, rms)
+        beyond = (np.abs(e[late]) > 3.0 * r.sd_deg[late]).mean(axis=0)
+        assert np.all(beyond <= 0.01), (seed, beyond)
         al = r.aligned[late]
-        assert al.any() and np.abs(e[late, 2][al]).max() < 30.0, seed
+        assert not al.any() or np.abs(e[late, 2][al]).max() < 6.0, seed

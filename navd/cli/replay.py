@@ -461,7 +461,7 @@ def _mount_hint(est: Estimator) -> None:
         print(f"navd replay: the IMU's accelerations put its heading {turned:.0f} deg from "
               f"the GNSS course: the IMU is turned on the vehicle? (--set "
               f"imu.mount_yaw_deg={turned:.0f}, or the mounting's measured angle; until it "
-              "is set the course is not used from then on and the attitude is that of the "
+              "is set navd learns that angle each run and the attitude is that of the "
               "IMU's axes)", file=sys.stderr)
     pitch = est.status().get("imu_pitch_on_vehicle_deg")
     if est.counters.get("imu_pitch_mount_suspect") and isinstance(pitch, list):

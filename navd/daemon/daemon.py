@@ -102,7 +102,8 @@ _EST_WORDS = {
     "course_not_heading_imu": "the IMU's accelerations put its heading 60-120 deg from the "
                               "GNSS course: the IMU is turned on the vehicle (status "
                               "imu_yaw_on_vehicle_deg; set [imu] mount_yaw_deg to it); "
-                              "until then the course is not used and the attitude is the "
+                              "until then that angle is learnt, the course holds the "
+                              "heading of the IMU's axes by it, and the attitude is the "
                               "IMU's",
     "gyro_bias_corrections_high": "the gyro-bias estimates moved more than their covariance "
                                   "allows (a gyro error wandering within seconds, e.g. "

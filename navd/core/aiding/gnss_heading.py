@@ -42,6 +42,7 @@ from navd.core.aiding.base import (
 from navd.core.aiding.course_learner import CourseLearner, K, S
 from navd.core.aiding.course_noise import CourseNoise
 from navd.core.aiding.heading_alignment import FLIPPED_RECENT_S, HeadingAlignment
+from navd.core.aiding.mount_yaw import MountYaw
 from navd.core.aiding.travel_direction import TravelDirection
 from navd.core.chi2 import chi2_quantile
 from navd.core.errors import I_BA
@@ -57,9 +58,12 @@ Arr = npt.NDArray[np.float64]
 # a yaw set from the course takes the course + 180 deg when the IMU said this lately that
 # the vehicle moves backwards (travel_direction.py), s
 _DIRECTION_RECENT_S = 10.0
-# the yaw's sigma after it was turned to the IMU's verdict, rad: a verdict made while the
-# course bent tilt and bias was 4-25 deg off the mount (a 45 deg mount read 64-77 deg)
+# the sigma of the IMU's yaw on the vehicle when its verdict turned the yaw, rad: a verdict
+# made while the course bent tilt and bias was 4-25 deg off the mount (a 45 deg mount read
+# 64-77 deg)
 _IMU_TURN_SD = 20.0 * math.pi / 180.0
+# ... and the course rows wait for it to be learnt to this sigma, rad (mount_yaw.py)
+_MOUNT_ROWS_SD = 5.0 * math.pi / 180.0
 
 
 @jit
@@ -152,16 +156,21 @@ def course_sd(speed_sd_mps: float, speed_h_mps: float) -> float:
     return speed_sd_mps / speed_h_mps
 
 
-def _turn_yaw(est: Estimator, d: float) -> None:
-    """Turn the attitude about down by ``d`` rad (yaw + d), the tilt error with it
-    (navd.core.state.turn_tilt_cov), and forget the yaw's covariance (row and column 2 of
-    P, its variance left 0 for the caller to set)."""
+def _shift_yaw(est: Estimator, d: float) -> None:
+    """Turn the attitude about down by ``d`` rad (yaw + d) and the tilt error with it
+    (navd.core.state.turn_tilt_cov); the yaw's covariance is kept."""
     e = est.work[4]
     t = est.work[5]
     exp_into(e, 0.0, 0.0, d)
     mul3_into(t, e, est.mat_nb)
     est.mat_nb[:, :] = t
     st.turn_tilt_cov(est.buf, d)
+
+
+def _turn_yaw(est: Estimator, d: float) -> None:
+    """:func:`_shift_yaw`, and forget the yaw's covariance (row and column 2 of P, its
+    variance left 0 for the caller to set)."""
+    _shift_yaw(est, d)
     P = est.P
     P[2, :] = 0.0
     P[:, 2] = 0.0
@@ -193,8 +202,8 @@ class CourseHeading:
         self.rejects = 0
         # this epoch's course row is the reversed course (a reversing the IMU confirmed)
         self.backward = False
-        # the IMU's x axis from the course when the IMU showed it turned, rad (nan: never)
-        self.imu_yaw_on_vehicle = math.nan
+        # the IMU's yaw on the vehicle once its accelerations showed it turned (mount_yaw.py)
+        self.mount = MountYaw()
         # the sideslip per lateral acceleration (course = heading + gain * a_lat for a car
         # whose tyres slip in turns), the z gyro's scale error and a boat's water current,
         # learnt from the course innovations
@@ -218,6 +227,22 @@ class CourseHeading:
         self._wv = np.zeros(2)  # the epoch's velocity through the water, m/s (_learn_epoch)
 
     @property
+    def imu_yaw_on_vehicle(self) -> float:
+        """The IMU's x axis from the course, rad (right +), learnt once the IMU showed it
+        turned on the vehicle; NaN until then."""
+        return self.mount.mu if self.mount.active else math.nan
+
+    def _to_imu(self, vn: float, ve: float) -> tuple[float, float]:
+        """A horizontal velocity (m/s, north, east) turned by the IMU's learnt yaw on the
+        vehicle: its course is then the course of the body x axis (unturned until the IMU
+        showed it turned)."""
+        mt = self.mount
+        if not mt.active:
+            return vn, ve
+        c, s = math.cos(mt.mu), math.sin(mt.mu)
+        return c * vn - s * ve, s * vn + c * ve
+
+    @property
     def slip_gain(self) -> float:
         """Learned sideslip per lateral acceleration, rad per m/s^2."""
         return float(self.learn.x[K])
@@ -238,6 +263,7 @@ class CourseHeading:
         self.direction.reset()
         self.learn.reset()
         self.noise.reset()
+        self.mount.reset()
         if self.watch is not None:
             self.watch.reset()
 
@@ -275,6 +301,12 @@ class CourseHeading:
                   d_rate: float) -> None:
         self.noise.end_epoch(d_yaw)
         self.learn.end_epoch(P, d_yaw, yaw, d_rate)
+        mt = self.mount
+        if mt.active:
+            # every course row shares one mount error: the yaw sigma never claims less
+            if P[2, 2] < mt.var:
+                P[2, 2] = mt.var
+            return
         w = self.watch
         if w is not None:
             w.end_epoch(P, d_yaw, yaw, d_rate)
@@ -291,12 +323,14 @@ class CourseHeading:
                            "disabled: traditional mode" if c.filter.mode == "traditional"
                            else "disabled: fixed_wing without crab allowance")
             return False
-        if self.align.course_off:
-            self.status = ("off: the IMU's yaw is not the course's (an IMU turned on the "
-                           "vehicle? [imu] mount_yaw_deg)")
+        if self.mount.active and self.mount.var > _MOUNT_ROWS_SD * _MOUNT_ROWS_SD:
+            # rows at a mount this uncertain made the fixes bend tilt and accelerometer bias
+            # to fit it, which bent the verdicts that teach it toward it (mount_yaw.py)
+            self.status = "waiting: learning the IMU's yaw on the vehicle"
             return False
-        # through the water (boat), over the ground (others: the current is 0)
-        wn, we = self.learn.water(g.vel_n, g.vel_e)
+        # through the water (boat), over the ground (others: the current is 0); by the
+        # IMU's axes when it is turned on the vehicle
+        wn, we = self._to_imu(*self.learn.water(g.vel_n, g.vel_e))
         speed = math.hypot(wn, we)
         if speed < c.heading.min_speed:
             self.status = "waiting: speed below threshold"
@@ -328,7 +362,7 @@ class CourseHeading:
         if vx < 0.0 and speed < c.heading.max_reverse_speed and est.heading_aligned:
             self.status = "waiting: reversing"
             return False
-        self.status = "active"
+        self.status = "active: the IMU turned on the vehicle" if self.mount.active else "active"
         return True
 
     def _fill_velocity(self, est: Estimator, g: GnssSample, s_sd: float) -> tuple[int, bool]:
@@ -352,10 +386,11 @@ class CourseHeading:
         through the water: over the ground but on a boat); whether the course is used."""
         cfg = self.cfg
         al = self.align
-        wn, we = self.learn.water(g.vel_n, g.vel_e)
-        if (al.course_checks and not al.course_off and al.yaw_set
+        wn, we = self._to_imu(*self.learn.water(g.vel_n, g.vel_e))
+        if (al.course_checks and al.yaw_set
                 and self.direction.yaw_between_since(g.t_us * 1e-6 - FLIPPED_RECENT_S)):
             self._turn_to_imu(est)
+            wn, we = self._to_imu(*self.learn.water(g.vel_n, g.vel_e))
         al.check_course(est, g.t_us, wn, we, s_sd, self.learn, self.sd_beta, self.direction)
         if al.realign_requested:
             # backwards for longer than reversing explains: the yaw is wrong by > 90 deg
@@ -403,7 +438,8 @@ class CourseHeading:
         if learnt:
             est.gyro_sf[SF_SCALE_Z] = lrn.x[S]
         w = self.watch
-        if w is not None:
+        if w is not None and not self.mount.active:
+            # (a turned IMU's course is turned by its mount, the INS velocity is not)
             # the same row by the watch's current (step_lateral)
             gn, ge = lrn.ground(wn, we)
             w_n, w_e = w.water(gn, ge)
@@ -422,6 +458,8 @@ class CourseHeading:
         z = est.meas_z
         al = self.align
         lrn = self.learn
+        if self.mount.active:
+            self._learn_mount(est, g)
         use_course = self._water_checks(est, g, s_sd)
         m, swapped = self._fill_velocity(est, g, s_sd)
         if not use_course:
@@ -434,8 +472,8 @@ class CourseHeading:
             return
         # lever-arm-free GNSS velocity for the course, v_gnss - C (w x l); the velocity
         # innovation just computed is v_hat + C (w x l) - v_gnss; less the learnt current
-        vn_c, ve_c = lrn.water(g.vel_n - (z[0] - (est.vel_n[0] - g.vel_n)),
-                               g.vel_e - (z[1] - (est.vel_n[1] - g.vel_e)))
+        vn_c, ve_c = self._to_imu(*lrn.water(g.vel_n - (z[0] - (est.vel_n[0] - g.vel_n)),
+                                             g.vel_e - (z[1] - (est.vel_n[1] - g.vel_e))))
         if not al.yaw_set:
             if swapped:
                 est.state_restore()
@@ -451,7 +489,7 @@ class CourseHeading:
         d = float(lrn.x[K]) * a_lat
         cd, sd_ = math.cos(d), math.sin(d)
         vn_c, ve_c = cd * vn_c + sd_ * ve_c, -sd_ * vn_c + cd * ve_c
-        sd_b2 = self.sd_beta * self.sd_beta + self._course_var(est, a_lat)
+        sd_b2 = self.sd_beta * self.sd_beta + self._course_var(est, a_lat) + self._mount_var()
         # the row's white variance as modelled, and what the course's own correlated slip
         # adds beyond it (course_noise.py; the speed part is the GNSS velocity's, shared
         # with rows 0-2, so the extra goes into the sideslip term)
@@ -526,7 +564,8 @@ class CourseHeading:
         as variance, with the course-noise scale as it stands."""
         a_lat = self.learn.a_lat
         slip = float(self.learn.x[K]) * a_lat
-        sd_b2 = (self.sd_beta * self.sd_beta + self._course_var(est, a_lat) + slip * slip)
+        sd_b2 = (self.sd_beta * self.sd_beta + self._course_var(est, a_lat) + slip * slip
+                 + self._mount_var())
         r_white = s_sd * s_sd / max(vn_c * vn_c + ve_c * ve_c, 1e-6) + sd_b2
         sd_beta = math.sqrt(sd_b2 + (self.noise.scale - 1.0) * r_white)
         zc, sc = self._row(est, -vn_c, -ve_c, s_sd, sd_beta, swapped)
@@ -579,11 +618,13 @@ class CourseHeading:
         course is not this IMU's heading (it is mounted turned on the vehicle, unstated;
         before, a 90 deg mount was flagged aligned 90 deg off with sigma 0.1 deg, its roll
         and pitch 4-8 deg RMS, 28-66 % of the instants beyond 3 sigma).  The yaw is turned
-        to what the IMU implies with a sigma of ``_IMU_TURN_SD`` (at least the heading
-        prior's), and the course is left alone for the rest of the run (counted
-        ``course_not_heading_imu``; status ``imu_yaw_on_vehicle_deg``)."""
+        to what the IMU implies, and the course is the heading of the IMU's axes from then
+        on by the IMU's yaw on the vehicle, learnt from that verdict with a sigma of
+        ``_IMU_TURN_SD`` (mount_yaw.py; counted ``course_not_heading_imu``; status
+        ``imu_yaw_on_vehicle_deg``)."""
         err = self.direction.yaw_error
-        self.imu_yaw_on_vehicle = err  # the IMU's x axis from the course, rad (right +)
+        mt = self.mount
+        mt.start((mt.mu if mt.active else 0.0) + err, _IMU_TURN_SD * _IMU_TURN_SD)
         _turn_yaw(est, err)
         P = est.P
         P[2, 2] = max(self.cfg.init.heading_sd, _IMU_TURN_SD) ** 2
@@ -596,12 +637,34 @@ class CourseHeading:
         for i in range(I_BA, I_BA + 3):
             P[i, i] += ba2
         self.rejects = 0
-        self.align.course_not_heading(est)
-        # the heading from here is what accelerations show, as on a multirotor: searched for
-        # by a yaw bank, which holds the yaw (and tilt and biases while accelerating) out of
-        # the fixes until it is trusted and owns the flag
-        est.start_yaw_bank()
+        # the slip and the z gyro's scale were learnt from a course that was not this yaw's
+        self.learn.reset()
+        est.gyro_sf[SF_SCALE_Z] = 0.0
+        self.noise.restart_chain()
+        self.align.imu_turned(est)
         est.counters["course_not_heading_imu"] += 1
+
+    def _mount_var(self) -> float:
+        """What the learnt IMU yaw on the vehicle leaves in a course row, rad^2 (0 with
+        the IMU unturned)."""
+        mt = self.mount
+        return mt.var if mt.active else 0.0
+
+    def _learn_mount(self, est: Estimator, g: GnssSample) -> None:
+        """A decisive epoch of the travel-direction monitor measures the IMU's yaw on the
+        vehicle (mount_yaw.py); the yaw moves with the estimate (it follows course +
+        mount)."""
+        dirn = self.direction
+        t = g.t_us * 1e-6
+        z = dirn.decisive_mount(t)
+        if not math.isfinite(z) or math.hypot(g.vel_n, g.vel_e) < self.cfg.heading.min_speed:
+            return
+        # the course of the body x axis is the GNSS course less the learnt slip
+        z += float(self.learn.x[K]) * self.learn.a_lat
+        d = self.mount.measure(z, dirn.decisive_sd, t)
+        if d != 0.0:
+            _shift_yaw(est, d)
+            est.counters["imu_yaw_on_vehicle_learnt"] += 1
 
     def align_yaw(self, est: Estimator, vn: float, ve: float, s_sd: float,
                   extra_sd: float = 0.0) -> None:

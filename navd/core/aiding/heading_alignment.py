@@ -107,7 +107,8 @@ class HeadingAlignment:
         # a boat's course agrees with its yaw whatever the current: the crab is in both
         # (the yaw was set from the course), so its flag also waits for the yaw sigma
         # (the current learnt in turns, aiding/course_learner.py)
-        self._sigma_too = cfg.filter.profile == "boat"
+        self._boat = cfg.filter.profile == "boat"
+        self._sigma_too = self._boat
         # a car may reverse: below [heading] max_reverse_speed_mps its course checks flag
         # the yaw only once the IMU's accelerations confirmed it (travel_direction.py) or
         # after [heading] max_reverse_s of forward checks
@@ -115,9 +116,6 @@ class HeadingAlignment:
         # traditional mode does not take course as heading: there a failed check only drops
         # the flag, the yaw is left to the filter
         self.may_realign = cfg.filter.mode == "completed"
-        # the IMU's accelerations put its yaw 60-120 deg off the course: the course is
-        # not this IMU's heading (mounted turned on the vehicle), for the rest of the run
-        self.course_off = False
         self._s = np.zeros(12)
         # the last _WATCH_N forward checks: (d (rad), course variance (rad^2)) per column,
         # written round-robin at _WIN_N % _WATCH_N
@@ -125,7 +123,7 @@ class HeadingAlignment:
         self.reset()
 
     def reset(self) -> None:
-        self.course_off = False
+        self._sigma_too = self._boat
         self._s[:] = 0.0
         self._s[_OK_T0] = -1.0
         self._s[_BACK_T0] = -1.0
@@ -167,19 +165,13 @@ class HeadingAlignment:
         est.counters["heading_yaw_from_course" if from_course
                      else "heading_yaw_observable"] += 1
 
-    def course_not_heading(self, est: Estimator) -> None:
-        """The course is not this IMU's heading (its yaw was just set from what the IMU's
-        accelerations imply): course checks end and the flag drops; the yaw bank the caller
-        starts owns it from then on (without one, the observability rule would: the yaw
-        sigma small for a while, as on profiles without a course)."""
-        s = self._s
-        self.course_off = True
-        s[_ORIGIN] = _OBSERVED
-        s[_OK_N] = 0.0
-        s[_OK_T0] = -1.0
-        s[_MOVED] = 0.0
-        s[_REALIGN] = 0.0
-        est.heading_aligned = False
+    def imu_turned(self, est: Estimator) -> None:
+        """The yaw was turned to what the IMU's accelerations show (an IMU turned on the
+        vehicle, gnss_heading.py): the checks go on against the course turned by the
+        learnt mount, and the flag waits, as on a boat, also for the yaw sigma below
+        ``[init] aligned_sd_deg`` (the mount's sigma floors it)."""
+        self._sigma_too = True
+        self.yaw_given(est, from_course=True)
 
     def config_heading(self) -> None:
         """The yaw came from config and is flagged aligned at once (the user says so)."""
@@ -214,7 +206,7 @@ class HeadingAlignment:
         configured sideslip sigma, rad; ``dirn``: which way the IMU's accelerations say the
         yaw points."""
         s = self._s
-        if (not self.course_checks or self.course_off or s[_ORIGIN] == _NONE
+        if (not self.course_checks or s[_ORIGIN] == _NONE
                 or est.yaw_bank is not None):
             return
         speed = math.hypot(vn, ve)
@@ -355,7 +347,7 @@ class HeadingAlignment:
     def check_observed(self, est: Estimator, t_us: int) -> None:
         """One epoch of the observability rule (profiles without course checks)."""
         s = self._s
-        if ((self.course_checks and not self.course_off) or est.yaw_bank is not None
+        if (self.course_checks or est.yaw_bank is not None
                 or est.heading_aligned or s[_ORIGIN] == _NONE):
             return
         sd = self.cfg.init.aligned_sd

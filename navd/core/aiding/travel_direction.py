@@ -52,9 +52,12 @@ _STALE = 30.0 * math.pi / 180.0  # a yaw sigma beyond this voids a confirmation
 # state layout: last epoch time (s, -1: none), its GNSS north/east velocity, the corrected
 # INS north/east velocity after it, the run's verdict class (-1 none, 0 right, 1 between,
 # 2 flipped), its length, its first time, the recorded yaw error (rad) and its time (s,
-# -inf: none), the yaw after the last epoch (rad) and its rate about down then (rad/s)
-(_T, _VGN, _VGE, _VIN, _VIE, _CLS, _RUN_N, _RUN_T0, _ERR, _ERR_T, _YAW, _RATE) = range(12)
-_N = 12
+# -inf: none), the yaw after the last epoch (rad) and its rate about down then (rad/s);
+# the last decisive epoch's own yaw error (rad), its sigma (rad), its time (s, -inf: none),
+# and the filter's yaw and the GNSS velocity (north, east, m/s) at it
+(_T, _VGN, _VGE, _VIN, _VIE, _CLS, _RUN_N, _RUN_T0, _ERR, _ERR_T, _YAW, _RATE, _RAW_ERR,
+ _RAW_SD, _RAW_T, _RAW_YAW, _RAW_VN, _RAW_VE) = range(18)
+_N = 18
 
 
 @jit
@@ -120,8 +123,11 @@ def _before(s: Arr, sums: Arr, t_s: float, vg_n: float, vg_e: float, vi_n: float
         jump = _wrap(yaw - s[_YAW] - 0.5 * (s[_RATE] + rate_d) * dt)
         if abs(jump) > _RESTART_RUN:
             _turn(s, sums, jump)
-        _judge(s, sums, t_s, dt, vg_n - s[_VGN], vg_e - s[_VGE], vi_n - s[_VIN],
-               vi_e - s[_VIE], vel_sd, drift_sd, vrw)
+        if _judge(s, sums, t_s, dt, vg_n - s[_VGN], vg_e - s[_VGE], vi_n - s[_VIN],
+                  vi_e - s[_VIE], vel_sd, drift_sd, vrw):
+            s[_RAW_YAW] = yaw
+            s[_RAW_VN] = vg_n
+            s[_RAW_VE] = vg_e
     s[_T] = t_s
     s[_VGN] = vg_n
     s[_VGE] = vg_e
@@ -129,11 +135,12 @@ def _before(s: Arr, sums: Arr, t_s: float, vg_n: float, vg_e: float, vi_n: float
 
 @jit
 def _judge(s: Arr, sums: Arr, t_s: float, dt: float, dgn: float, dge: float, din: float,
-           die: float, vel_sd: float, drift_sd: float, vrw: float) -> None:
+           die: float, vel_sd: float, drift_sd: float, vrw: float) -> bool:
     """One epoch's velocity changes (GNSS ``dgn, dge``, INS ``din, die``, m/s) into the
-    leaky sums, and the verdict."""
+    leaky sums, and the verdict; whether the epoch was decisive."""
     best = -1.0
     err = 0.0
+    err_sd = 0.0
     for i in range(len(_TAUS)):
         tau = _TAUS[i]
         lam = math.exp(-dt / tau)
@@ -155,10 +162,15 @@ def _judge(s: Arr, sums: Arr, t_s: float, dt: float, dgn: float, dge: float, din
             best = ng / sig
             # the rotation that takes the INS's change onto the GNSS's: the yaw error
             err = math.atan2(jn * ge - je * gn, jn * gn + je * ge)
+            # both changes carry ~sig: the angle between them, sqrt(2) sig / |G|
+            err_sd = math.sqrt(2.0) * sig / ng
     if best < 0.0:
         s[_CLS] = -1.0
         s[_RUN_N] = 0.0
-        return
+        return False
+    s[_RAW_ERR] = err
+    s[_RAW_SD] = err_sd
+    s[_RAW_T] = t_s
     a = abs(err)
     cls = 0.0 if a < _RIGHT else (2.0 if a > _FLIP else 1.0)
     if cls != s[_CLS]:
@@ -169,6 +181,7 @@ def _judge(s: Arr, sums: Arr, t_s: float, dt: float, dgn: float, dge: float, din
     if s[_RUN_N] >= _CONFIRM_N and t_s - s[_RUN_T0] >= _CONFIRM_S:
         s[_ERR] = err
         s[_ERR_T] = t_s
+    return True
 
 
 class TravelDirection:
@@ -186,6 +199,7 @@ class TravelDirection:
         s[_T] = -1.0
         s[_CLS] = -1.0
         s[_ERR_T] = -math.inf
+        s[_RAW_T] = -math.inf
         self._sums[:] = 0.0
 
     @property
@@ -198,6 +212,26 @@ class TravelDirection:
     def yaw_error_t(self) -> float:
         """When :attr:`yaw_error` was last recorded, s (-inf: never since the reset)."""
         return float(self._s[_ERR_T])
+
+    def decisive_mount(self, t_s: float) -> float:
+        """The IMU's yaw from the GNSS course, rad (heading of the body x axis less the
+        course: the filter's yaw plus the yaw error the epoch at ``t_s`` showed, less the
+        course then), or NaN when that epoch was not decisive.  Unlike the yaw error
+        alone, it does not depend on where the fixes have put the yaw."""
+        s = self._s
+        if s[_RAW_T] != t_s or math.hypot(s[_RAW_VN], s[_RAW_VE]) <= 0.0:
+            return math.nan
+        return _wrap(s[_RAW_YAW] + s[_RAW_ERR] - math.atan2(s[_RAW_VE], s[_RAW_VN]))
+
+    @property
+    def decisive_sd(self) -> float:
+        """The last decisive epoch's yaw-error sigma, rad (from the sums' noise)."""
+        return float(self._s[_RAW_SD])
+
+    @property
+    def decisive_error(self) -> float:
+        """The last decisive epoch's yaw error, true minus filter, rad."""
+        return float(self._s[_RAW_ERR])
 
     def yaw_right(self, p22: float) -> bool:
         """Whether the IMU's last verdict confirmed the yaw (within 60 deg) and the yaw's

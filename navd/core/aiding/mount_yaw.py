@@ -1,0 +1,87 @@
+"""The IMU's yaw on a ground vehicle, learnt once its accelerations showed it turned.
+
+Why.  A course is the heading of the vehicle, not of an IMU turned on it.  When the IMU's
+accelerations put its yaw 60-120 deg from the course (travel_direction.py) the course used
+to be dropped for the rest of the run; the heading then came from accelerations alone and
+wandered 6-21 deg off at sigma ~3 deg between them (issue 14).  The course still tells the
+heading between accelerations, to within one constant: the IMU's yaw on the vehicle, mu.
+
+What.  One scalar Kalman filter for mu (rad, heading of the body x axis less the course;
+constant: a bracket does not turn).  Each decisive epoch of the travel-direction monitor
+measures it as the filter's yaw plus the yaw error the epoch showed, less the course then
+(:meth:`TravelDirection.decisive_mount`): where the fixes have put the yaw cancels.  The
+monitor's leaky sums share most of their data over their longest time constant, so one
+measurement per ``_MEAS_DT`` is taken, with ``_MEAS_FLOOR`` added to the sums' own noise for
+what it leaves out (antenna lever arm in turns, the GNSS latency, tilt errors).  The course
+rows use course + mu (gnss_heading.py) with P_mumu added to their noise, and the yaw
+variance is never left below P_mumu: every row shares the same mu error, which independent
+rows would average away.  docs/design.md §4 ("An IMU turned on the vehicle").
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+_MEAS_DT = 6.0  # s between measurements: travel_direction._TAUS' longest
+_MEAS_FLOOR = 3.0 * math.pi / 180.0  # rad, added to every measurement's sigma
+_GATE = 9.0  # chi-square(1), a measurement beyond it is not used (a GNSS glitch, a skid)
+(_MU, _VAR, _T, _ON) = range(4)
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+class MountYaw:
+    """The IMU's yaw on the vehicle and its variance (module doc).  Arrays only: the epoch
+    loop rebinds no Python objects."""
+
+    def __init__(self) -> None:
+        self._s = np.zeros(4)
+        self.reset()
+
+    def reset(self) -> None:
+        self._s[:] = 0.0
+        self._s[_T] = -math.inf
+
+    @property
+    def active(self) -> bool:
+        return bool(self._s[_ON])
+
+    @property
+    def mu(self) -> float:
+        """The IMU's yaw on the vehicle, rad (right +: the body x axis right of travel)."""
+        return float(self._s[_MU])
+
+    @property
+    def var(self) -> float:
+        """Its variance, rad^2."""
+        return float(self._s[_VAR])
+
+    def start(self, mu: float, var: float) -> None:
+        """The IMU's accelerations put its yaw ``mu`` rad from the course (variance ``var``
+        rad^2); a later turn restarts from its own verdict."""
+        s = self._s
+        s[_MU] = _wrap(mu)
+        s[_VAR] = var
+        s[_T] = -math.inf
+        s[_ON] = 1.0
+
+    def measure(self, z: float, sd: float, t_s: float) -> float:
+        """A decisive epoch's mu ``z`` rad with its sigma ``sd`` rad at ``t_s``; returns
+        how far the estimate moved, rad (0 when not used)."""
+        s = self._s
+        if not s[_ON] or not math.isfinite(z) or t_s - s[_T] < _MEAS_DT:
+            return 0.0
+        r = sd * sd + _MEAS_FLOOR * _MEAS_FLOOR
+        nu = _wrap(z - s[_MU])
+        if nu * nu > _GATE * (s[_VAR] + r):
+            return 0.0
+        s[_T] = t_s
+        k = s[_VAR] / (s[_VAR] + r)
+        d = k * nu
+        s[_MU] = _wrap(s[_MU] + d)
+        s[_VAR] = (1.0 - k) * s[_VAR]
+        return float(d)
