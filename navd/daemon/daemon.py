@@ -99,8 +99,8 @@ _CLOCK_WORDS = {
 _EST_WORDS = {
     "course_not_heading": "the GNSS course keeps leaving the heading as a water current or a "
                           "crab would: on a boat run [filter] profile = \"boat\"",
-    "course_not_heading_imu": "the IMU's accelerations put its heading 60-120 deg from the "
-                              "GNSS course: the IMU is turned on the vehicle (status "
+    "course_not_heading_imu": "the IMU's accelerations put its heading off the GNSS "
+                              "course: the IMU is turned on the vehicle (status "
                               "imu_yaw_on_vehicle_deg; set [imu] mount_yaw_deg to it); "
                               "until then that angle is learnt, the course holds the "
                               "heading of the IMU's axes by it, and the attitude is the "

@@ -204,6 +204,9 @@ class CourseHeading:
         self.backward = False
         # the IMU's yaw on the vehicle once its accelerations showed it turned (mount_yaw.py)
         self.mount = MountYaw()
+        # ... and the same beside rows that take it to be 0, to tell a smaller turn (ground)
+        self.mount_watch = (MountYaw() if self.enabled and c.filter.profile == "ground"
+                            else None)
         # the sideslip per lateral acceleration (course = heading + gain * a_lat for a car
         # whose tyres slip in turns), the z gyro's scale error and a boat's water current,
         # learnt from the course innovations
@@ -264,6 +267,8 @@ class CourseHeading:
         self.learn.reset()
         self.noise.reset()
         self.mount.reset()
+        if self.mount_watch is not None:
+            self.mount_watch.reset()
         if self.watch is not None:
             self.watch.reset()
 
@@ -389,7 +394,7 @@ class CourseHeading:
         wn, we = self._to_imu(*self.learn.water(g.vel_n, g.vel_e))
         if (al.course_checks and al.yaw_set
                 and self.direction.yaw_between_since(g.t_us * 1e-6 - FLIPPED_RECENT_S)):
-            self._turn_to_imu(est)
+            self._turn_to_imu(est, self.direction.yaw_error)
             wn, we = self._to_imu(*self.learn.water(g.vel_n, g.vel_e))
         al.check_course(est, g.t_us, wn, we, s_sd, self.learn, self.sd_beta, self.direction)
         if al.realign_requested:
@@ -459,7 +464,14 @@ class CourseHeading:
         al = self.align
         lrn = self.learn
         if self.mount.active:
-            self._learn_mount(est, g)
+            self._learn_mount(est, g, self.mount)
+        elif self.mount_watch is not None and al.yaw_set:
+            if not self.mount_watch.active:
+                self.mount_watch.start(0.0, _IMU_TURN_SD * _IMU_TURN_SD)
+            self._learn_mount(est, g, self.mount_watch)
+            if self.mount_watch.turned:
+                # the IMU's yaw on the vehicle, as the watch reads it (bent toward 0)
+                self._turn_to_imu(est, self.mount_watch.mu)
         use_course = self._water_checks(est, g, s_sd)
         m, swapped = self._fill_velocity(est, g, s_sd)
         if not use_course:
@@ -613,29 +625,33 @@ class CourseHeading:
             self.yaw_known(float(est.P[2, 2]), math.atan2(m[1, 0], m[0, 0]),
                            est.t_us * 1e-6, rate_var_down(est))
 
-    def _turn_to_imu(self, est: Estimator) -> None:
-        """The IMU's accelerations put the yaw 60-120 deg off the course it follows: the
-        course is not this IMU's heading (it is mounted turned on the vehicle, unstated;
-        before, a 90 deg mount was flagged aligned 90 deg off with sigma 0.1 deg, its roll
-        and pitch 4-8 deg RMS, 28-66 % of the instants beyond 3 sigma).  The yaw is turned
-        to what the IMU implies, and the course is the heading of the IMU's axes from then
-        on by the IMU's yaw on the vehicle, learnt from that verdict with a sigma of
-        ``_IMU_TURN_SD`` (mount_yaw.py; counted ``course_not_heading_imu``; status
-        ``imu_yaw_on_vehicle_deg``)."""
-        err = self.direction.yaw_error
+    def _turn_to_imu(self, est: Estimator, err: float) -> None:
+        """The IMU's accelerations put the yaw ``err`` rad off the course it follows (a
+        verdict 60-120 deg off, or the mount watch's): the course is not this IMU's heading
+        (it is mounted turned on the vehicle, unstated; before, a 90 deg mount was flagged
+        aligned 90 deg off with sigma 0.1 deg, its roll and pitch 4-8 deg RMS, 28-66 % of
+        the instants beyond 3 sigma).  The yaw is turned by ``err``, and the course is the
+        heading of the IMU's axes from then on by the IMU's yaw on the vehicle, learnt from
+        there with a sigma of ``_IMU_TURN_SD`` (mount_yaw.py; counted
+        ``course_not_heading_imu``; status ``imu_yaw_on_vehicle_deg``)."""
         mt = self.mount
         mt.start((mt.mu if mt.active else 0.0) + err, _IMU_TURN_SD * _IMU_TURN_SD)
         _turn_yaw(est, err)
         P = est.P
         P[2, 2] = max(self.cfg.init.heading_sd, _IMU_TURN_SD) ** 2
         # the fixes bent tilt and accelerometer bias to make a turned IMU's accelerations
-        # fit the course: their priors again (their sigma claimed what was not so)
+        # fit the course: their priors again (their sigma claimed what was not so), the
+        # bias from its prior mean (a bent bias kept bending the verdicts that teach the
+        # mount: a 45 deg mount learnt as 51 deg)
         tilt2 = self.cfg.init.tilt_sd ** 2
         ba2 = self.cfg.imu.accel_bias_sd ** 2
         for i in range(2):
             P[i, i] += tilt2
+        est.bias_a[:] = self.cfg.imu.accel_bias
         for i in range(I_BA, I_BA + 3):
-            P[i, i] += ba2
+            P[i, :] = 0.0
+            P[:, i] = 0.0
+            P[i, i] = ba2
         self.rejects = 0
         # the slip and the z gyro's scale were learnt from a course that was not this yaw's
         self.learn.reset()
@@ -650,10 +666,10 @@ class CourseHeading:
         mt = self.mount
         return mt.var if mt.active else 0.0
 
-    def _learn_mount(self, est: Estimator, g: GnssSample) -> None:
+    def _learn_mount(self, est: Estimator, g: GnssSample, mt: MountYaw) -> None:
         """A decisive epoch of the travel-direction monitor measures the IMU's yaw on the
-        vehicle (mount_yaw.py); the yaw moves with the estimate (it follows course +
-        mount)."""
+        vehicle (mount_yaw.py) into ``mt``; the yaw moves with the learnt one (it follows
+        course + mount), not with the watch's."""
         dirn = self.direction
         t = g.t_us * 1e-6
         z = dirn.decisive_mount(t)
@@ -661,8 +677,8 @@ class CourseHeading:
             return
         # the course of the body x axis is the GNSS course less the learnt slip
         z += float(self.learn.x[K]) * self.learn.a_lat
-        d = self.mount.measure(z, dirn.decisive_sd, t)
-        if d != 0.0:
+        d = mt.measure(z, dirn.decisive_sd, t)
+        if d != 0.0 and mt is self.mount:
             _shift_yaw(est, d)
             est.counters["imu_yaw_on_vehicle_learnt"] += 1
 
