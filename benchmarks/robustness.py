@@ -434,10 +434,13 @@ class _TappedRun(SimRun):
         return tap_gnss(self.est, super().samples(), self.outcomes)
 
 
-def score_sim(run: SimRun, profile: str, overrides: tuple[str, ...] = ()) -> RunResult:
+def score_sim(run: SimRun, profile: str, overrides: tuple[str, ...] = (),
+              est: Estimator | None = None) -> RunResult:
     """Score ``run`` with the default config and ``filter.profile = profile`` (``overrides``:
-    only for the benchmark's own tests)."""
-    est = build_estimator(load_config(None, [f"filter.profile={profile}", *overrides]))
+    only for the benchmark's own tests); ``est``: that estimator, built by the caller (who
+    reads its state afterwards)."""
+    if est is None:
+        est = build_estimator(load_config(None, [f"filter.profile={profile}", *overrides]))
     tapped = _TappedRun(**{k: getattr(run, k) for k in run.__dataclass_fields__})
     tapped.est = est
     tapped.outcomes = GnssOutcomes()
