@@ -1,17 +1,18 @@
 """An IMU turned on a ground vehicle about down, the turn not stated: is it told, its yaw on
 the vehicle learnt, and is the heading of the IMU's own axes honest?
 
-car480 with ``imu.mount_yaw_deg`` set in the simulator (the IMU's increments turned, the
-truth the vehicle's) and navd's default config with ``filter.profile = ground`` (no
-``[imu] mount_yaw_deg``).  Errors are against the attitude of the IMU's axes, which is what
-navd reports when the mount is not stated (docs/design.md §4, "An IMU turned on the
+car480 (``--scenario``) with ``imu.mount_yaw_deg`` set in the simulator (the IMU's
+increments turned, the truth the vehicle's) and navd's default config with
+``filter.profile = ground`` (``--profile``; no ``[imu] mount_yaw_deg``).  Errors are
+against the attitude of the IMU's axes, which is what navd reports when the mount is not
+stated (docs/design.md §4, "An IMU turned on the
 vehicle").  Per mount and seed: when the turn was told (the yaw sigma widened to 20 deg),
 the learnt yaw on the vehicle and its sigma at the end, and from ``--from-s`` on the heading
 RMS, the share of instants beyond 3 sigma, the share flagged aligned and the largest
 aligned error; roll / pitch RMS and beyond 3 sigma.
 
     .venv/bin/python benchmarks/imu_mount.py [--mounts 10,20,30,45,60,90,-90,120,180,0]
-        [--seeds 1,2,3] [--from-s 300] [--jobs 2]
+        [--seeds 1,2,3] [--from-s 300] [--jobs 2] [--scenario car480 --profile ground]
 """
 
 from __future__ import annotations
@@ -31,12 +32,12 @@ from navd.core.rotation import euler_to_mat_into, mat_to_euler
 from navd.pipeline import build_estimator
 
 
-def run_case(case: tuple[float, int, float]) -> dict[str, Any]:
-    mount, seed, from_s = case
-    run = generate(load_scenario("car480", {"imu.mount_yaw_deg": mount}), seed=seed,
+def run_case(case: tuple[float, int, float, str, str]) -> dict[str, Any]:
+    mount, seed, from_s, scenario, profile = case
+    run = generate(load_scenario(scenario, {"imu.mount_yaw_deg": mount}), seed=seed,
                    progress=False)
-    est = build_estimator(load_config(None, ["filter.profile=ground"]))
-    r = score_sim(run, "ground", est=est)
+    est = build_estimator(load_config(None, [f"filter.profile={profile}"]))
+    r = score_sim(run, profile, est=est)
     tt = run.truth_t_us * 1e-6
     idx = np.clip(np.searchsorted(tt, r.t_s), 0, len(tt) - 1)
     rz = np.zeros((3, 3))
@@ -75,13 +76,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", default="1,2,3")
     ap.add_argument("--from-s", type=float, default=300.0)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--scenario", default="car480")
+    ap.add_argument("--profile", default="ground")
     a = ap.parse_args(argv)
-    cases = [(float(m), int(s), a.from_s) for m in a.mounts.split(",")
+    cases = [(float(m), int(s), a.from_s, a.scenario, a.profile) for m in a.mounts.split(",")
              for s in a.seeds.split(",")]
     t0 = time.monotonic()
     with ProcessPoolExecutor(a.jobs) as ex:
         rows = list(ex.map(run_case, cases))
-    print(f"from {a.from_s:.0f} s on (errors against the IMU's axes; default config, ground)")
+    print(f"{a.scenario}, from {a.from_s:.0f} s on (errors against the IMU's axes; default "
+          f"config, {a.profile})")
     print("mount seed  told_s  mu +- sd (deg)    hdg rms  >3s %  aligned %  max al   "
           "roll/pitch rms  >3s %")
     for r in rows:

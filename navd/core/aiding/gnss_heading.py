@@ -238,7 +238,9 @@ class CourseHeading:
     def _to_imu(self, vn: float, ve: float) -> tuple[float, float]:
         """A horizontal velocity (m/s, north, east) turned by the IMU's learnt yaw on the
         vehicle: its course is then the course of the body x axis (unturned until the IMU
-        showed it turned)."""
+        showed it turned).  Every velocity the course logic uses is turned, the INS's too,
+        before the learnt current is taken out: a boat's current is then learnt in the
+        turned frame, where the IMU is the hull."""
         mt = self.mount
         if not mt.active:
             return vn, ve
@@ -335,7 +337,7 @@ class CourseHeading:
             return False
         # through the water (boat), over the ground (others: the current is 0); by the
         # IMU's axes when it is turned on the vehicle
-        wn, we = self._to_imu(*self.learn.water(g.vel_n, g.vel_e))
+        wn, we = self.learn.water(*self._to_imu(g.vel_n, g.vel_e))
         speed = math.hypot(wn, we)
         if speed < c.heading.min_speed:
             self.status = "waiting: speed below threshold"
@@ -391,11 +393,11 @@ class CourseHeading:
         through the water: over the ground but on a boat); whether the course is used."""
         cfg = self.cfg
         al = self.align
-        wn, we = self._to_imu(*self.learn.water(g.vel_n, g.vel_e))
+        wn, we = self.learn.water(*self._to_imu(g.vel_n, g.vel_e))
         if (al.course_checks and al.yaw_set
                 and self.direction.yaw_between_since(g.t_us * 1e-6 - FLIPPED_RECENT_S)):
             self._turn_to_imu(est, self.direction.yaw_error)
-            wn, we = self._to_imu(*self.learn.water(g.vel_n, g.vel_e))
+            wn, we = self.learn.water(*self._to_imu(g.vel_n, g.vel_e))
         al.check_course(est, g.t_us, wn, we, s_sd, self.learn, self.sd_beta, self.direction)
         if al.realign_requested:
             # backwards for longer than reversing explains: the yaw is wrong by > 90 deg
@@ -417,7 +419,7 @@ class CourseHeading:
         if not lrn.current:
             return lrn.course_var(a_lat, 0.0, 0.0, 0.0)
         m = est.mat_nb
-        ins_n, ins_e = lrn.water(float(est.vel_n[0]), float(est.vel_n[1]))
+        ins_n, ins_e = lrn.water(*self._to_imu(float(est.vel_n[0]), float(est.vel_n[1])))
         return lrn.course_var(a_lat, math.atan2(m[1, 0], m[0, 0]), ins_n, ins_e)
 
     def _learn_epoch(self, est: Estimator, g: GnssSample, zc: float, sc: float,
@@ -430,7 +432,7 @@ class CourseHeading:
         yaw = math.atan2(m[1, 0], m[0, 0])
         if lrn.current:
             # across the heading through the water, m/s (CourseLearner.step_lateral)
-            ins_n, ins_e = lrn.water(float(est.vel_n[0]), float(est.vel_n[1]))
+            ins_n, ins_e = lrn.water(*self._to_imu(float(est.vel_n[0]), float(est.vel_n[1])))
             lrn.lever_row(m, est.rate_b, yaw)
             learnt = lrn.step_lateral(wn, we, (wn * wn + we * we) * r_white, self._gate1,
                                       a_lat, yaw, ins_n, ins_e, g.t_us * 1e-6)
@@ -484,7 +486,7 @@ class CourseHeading:
             return
         # lever-arm-free GNSS velocity for the course, v_gnss - C (w x l); the velocity
         # innovation just computed is v_hat + C (w x l) - v_gnss; less the learnt current
-        vn_c, ve_c = self._to_imu(*lrn.water(g.vel_n - (z[0] - (est.vel_n[0] - g.vel_n)),
+        vn_c, ve_c = lrn.water(*self._to_imu(g.vel_n - (z[0] - (est.vel_n[0] - g.vel_n)),
                                              g.vel_e - (z[1] - (est.vel_n[1] - g.vel_e))))
         if not al.yaw_set:
             if swapped:
