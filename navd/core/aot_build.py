@@ -35,8 +35,8 @@ _R_EARTH = 6.37e6
 
 def _exercise() -> None:
     """Push a synthetic drive through a default estimator so its kernels get compiled, and
-    through one with a yaw bank: a ground vehicle starts one mid-run when its IMU turns out
-    to be turned on it (core/aiding/gnss_heading.py), and must not wait for numba then."""
+    through one with a yaw bank (the multirotor profile's, core/aiding/yaw_bank.py), whose
+    daemon must not wait for numba either."""
     from navd.config import NavConfig, load_config
     from navd.core.estimator import Estimator
 

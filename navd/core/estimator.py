@@ -237,16 +237,6 @@ class Estimator:
         self.counters[reason] += 1
         self._reset_state(reason)
 
-    def start_yaw_bank(self) -> None:
-        """Start a yaw bank mid-run (an aid found that the course is not the heading on a
-        profile that runs none): the heading is searched for from accelerations from here
-        (core/aiding/yaw_bank.py), the bank owning the flag as on the multirotor profile."""
-        if self.yaw_bank is None:
-            self.yaw_bank = YawBank(self.cfg)
-            self._bank_buf = self.yaw_bank.buf
-        self.heading_aligned = False
-        self.yaw_bank.start(self)
-
     @property
     def initialized(self) -> bool:
         return self._stage == _NAV
