@@ -197,6 +197,9 @@ async def _open(rec: _Recorder, threaded: bool, max_hold_us: int = 20_000
                 ) -> tuple[MavlinkLink, PacedUdpTransport]:
     cfg = MavlinkInputConfig(nominal_imu_rate_hz=1000.0, relock_s=None)
     link = await MavlinkLink.open("udpin:127.0.0.1:0", MavlinkDecoder(cfg), rec.on_sample)
+    # as the daemon asks ([daemon] rx_buffer_bytes): the default ~200 datagrams are 0.2 s of a
+    # 1 kHz stream, which a loop starved by a busy machine (the suite on every core) lost
+    link.set_receive_buffer(1 << 20)
     assert link.deliver_blocks(rec.on_block)
     t = link._udp_transport
     assert isinstance(t, PacedUdpTransport)

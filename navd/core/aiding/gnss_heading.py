@@ -64,6 +64,9 @@ _DIRECTION_RECENT_S = 10.0
 _IMU_TURN_SD = 20.0 * math.pi / 180.0
 # ... and the course rows wait for it to be learnt to this sigma, rad (mount_yaw.py)
 _MOUNT_ROWS_SD = 5.0 * math.pi / 180.0
+# a learnt yaw on the vehicle within this many of its sigmas of 0, once below
+# _MOUNT_ROWS_SD, says the turn was told wrongly: the IMU is straight after all
+_STRAIGHT_K = 2.0
 
 
 @jit
@@ -227,6 +230,8 @@ class CourseHeading:
         # (travel_direction.py); where the course checks run
         self.direction = TravelDirection()
         self._told = [False]  # course_not_heading counted (once per run)
+        # the mount watch is off for the run: a turn it told was dropped (_imu_straight)
+        self._watch_off = [False]
         self._wv = np.zeros(2)  # the epoch's velocity through the water, m/s (_learn_epoch)
 
     @property
@@ -269,6 +274,7 @@ class CourseHeading:
         self.learn.reset()
         self.noise.reset()
         self.mount.reset()
+        self._watch_off[0] = False
         if self.mount_watch is not None:
             self.mount_watch.reset()
         if self.watch is not None:
@@ -467,7 +473,7 @@ class CourseHeading:
         lrn = self.learn
         if self.mount.active:
             self._learn_mount(est, g, self.mount)
-        elif self.mount_watch is not None and al.yaw_set:
+        elif self.mount_watch is not None and al.yaw_set and not self._watch_off[0]:
             if not self.mount_watch.active:
                 self.mount_watch.start(0.0, _IMU_TURN_SD * _IMU_TURN_SD)
             self._learn_mount(est, g, self.mount_watch)
@@ -683,6 +689,22 @@ class CourseHeading:
         if d != 0.0 and mt is self.mount:
             _shift_yaw(est, d)
             est.counters["imu_yaw_on_vehicle_learnt"] += 1
+            sd = math.sqrt(mt.var)
+            if sd < _MOUNT_ROWS_SD and abs(mt.mu) < _STRAIGHT_K * sd:
+                self._imu_straight(est)
+
+    def _imu_straight(self, est: Estimator) -> None:
+        """The learnt yaw on the vehicle came back to within ``_STRAIGHT_K`` sigma of 0: the
+        turn was told wrongly (a false alarm of the mount watch; none on the benchmark's
+        cases), so the course is this IMU's heading again, as before it, and the watch stays
+        off for the run (no turn told, dropped, told again).  Counted
+        ``imu_yaw_on_vehicle_dropped``."""
+        _shift_yaw(est, -self.mount.mu)
+        self.mount.reset()
+        self._watch_off[0] = True
+        self.noise.restart_chain()
+        self.align.imu_straight(est)
+        est.counters["imu_yaw_on_vehicle_dropped"] += 1
 
     def align_yaw(self, est: Estimator, vn: float, ve: float, s_sd: float,
                   extra_sd: float = 0.0) -> None:

@@ -173,6 +173,12 @@ class HeadingAlignment:
         self._sigma_too = True
         self.yaw_given(est, from_course=True)
 
+    def imu_straight(self, est: Estimator) -> None:
+        """A turn told by the IMU was dropped (gnss_heading.py): the checks go on against
+        the course itself, the flag waiting for them as after any yaw given."""
+        self._sigma_too = self._boat
+        self.yaw_given(est, from_course=True)
+
     def config_heading(self) -> None:
         """The yaw came from config and is flagged aligned at once (the user says so)."""
         self._s[_ORIGIN] = _COURSE
