@@ -24,12 +24,26 @@ from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
 import numpy as np
-from robustness import score_sim
+import numpy.typing as npt
+from robustness import RunResult, score_sim
 
-from firmware_sim import generate, load_scenario
+from firmware_sim import SimRun, generate, load_scenario
 from navd.config import load_config
 from navd.core.rotation import euler_to_mat_into, mat_to_euler
 from navd.pipeline import build_estimator
+
+
+def imu_axes_errors(run: SimRun, r: RunResult, mount_deg: float) -> npt.NDArray[np.float64]:
+    """navd's roll / pitch / heading errors (deg, (n, 3), at ``r.t_s``) against the attitude
+    of the IMU's own axes: the vehicle's truth turned by ``mount_deg`` about down, what navd
+    reports with no [imu] mount_yaw_deg."""
+    tt = run.truth_t_us * 1e-6
+    idx = np.clip(np.searchsorted(tt, r.t_s), 0, len(tt) - 1)
+    rz = np.zeros((3, 3))
+    euler_to_mat_into(rz, 0.0, 0.0, math.radians(mount_deg))
+    est = run.truth_euler[idx] + np.radians(r.err_deg)
+    imu = np.array([mat_to_euler(run.truth_mat_nb[i] @ rz) for i in idx])
+    return np.asarray(np.degrees((est - imu + math.pi) % (2.0 * math.pi) - math.pi))
 
 
 def run_case(case: tuple[float, int, float, str, str]) -> dict[str, Any]:
@@ -38,13 +52,7 @@ def run_case(case: tuple[float, int, float, str, str]) -> dict[str, Any]:
                    progress=False)
     est = build_estimator(load_config(None, [f"filter.profile={profile}"]))
     r = score_sim(run, profile, est=est)
-    tt = run.truth_t_us * 1e-6
-    idx = np.clip(np.searchsorted(tt, r.t_s), 0, len(tt) - 1)
-    rz = np.zeros((3, 3))
-    euler_to_mat_into(rz, 0.0, 0.0, math.radians(mount))
-    est_e = run.truth_euler[idx] + np.radians(r.err_deg)
-    imu = np.array([mat_to_euler(run.truth_mat_nb[i] @ rz) for i in idx])
-    e = np.degrees((est_e - imu + math.pi) % (2.0 * math.pi) - math.pi)
+    e = imu_axes_errors(run, r, mount)
     sd = r.sd_deg
     beyond = np.abs(e) > 3.0 * sd
     late = r.t_s >= from_s

@@ -8,15 +8,18 @@ out of its space at the start is never flagged aligned the wrong way round."""
 from __future__ import annotations
 
 import math
+import sys
 from typing import Any
 
 import numpy as np
-from bench_util import load_benchmark
+from bench_util import BENCHMARKS, load_benchmark
 
 from firmware_sim import generate, load_scenario
 from navd.core.aiding.travel_direction import TravelDirection
 
 rb = load_benchmark("robustness")
+sys.path.insert(0, str(BENCHMARKS))  # imu_mount imports robustness by name
+im = load_benchmark("imu_mount")
 
 DT = 0.1  # s: 10 Hz fixes
 VEL_SD = 0.1  # m/s
@@ -248,17 +251,8 @@ def test_gnss_velocity_glitch_bursts_never_flip_a_right_heading() -> None:
 
 def _imu_errors(run: Any, r: Any, mount_deg: float) -> Any:
     """navd's roll / pitch / heading errors (deg, (n, 3)) against the attitude of the IMU's
-    own axes (the vehicle's truth turned by the unstated mount about down): what navd
-    reports with no [imu] mount_yaw_deg."""
-    from navd.core.rotation import euler_to_mat_into, mat_to_euler
-
-    tt = run.truth_t_us * 1e-6
-    idx = np.clip(np.searchsorted(tt, r.t_s), 0, len(tt) - 1)
-    rz = np.zeros((3, 3))
-    euler_to_mat_into(rz, 0.0, 0.0, math.radians(mount_deg))
-    est = run.truth_euler[idx] + np.radians(r.err_deg)
-    imu = np.array([mat_to_euler(run.truth_mat_nb[i] @ rz) for i in idx])
-    return np.degrees((est - imu + math.pi) % (2.0 * math.pi) - math.pi)
+    own axes (benchmarks/imu_mount.py)."""
+    return im.imu_axes_errors(run, r, mount_deg)
 
 
 def test_an_imu_turned_on_the_vehicle_has_its_yaw_on_the_vehicle_learnt() -> None:

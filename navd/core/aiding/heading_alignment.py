@@ -108,7 +108,6 @@ class HeadingAlignment:
         # (the yaw was set from the course), so its flag also waits for the yaw sigma
         # (the current learnt in turns, aiding/course_learner.py)
         self._boat = cfg.filter.profile == "boat"
-        self._sigma_too = self._boat
         # a car may reverse: below [heading] max_reverse_speed_mps its course checks flag
         # the yaw only once the IMU's accelerations confirmed it (travel_direction.py) or
         # after [heading] max_reverse_s of forward checks
@@ -212,8 +211,7 @@ class HeadingAlignment:
         configured sideslip sigma, rad; ``dirn``: which way the IMU's accelerations say the
         yaw points."""
         s = self._s
-        if (not self.course_checks or s[_ORIGIN] == _NONE
-                or est.yaw_bank is not None):
+        if not self.course_checks or s[_ORIGIN] == _NONE or est.yaw_bank is not None:
             return
         speed = math.hypot(vn, ve)
         if speed < _CHECK_SPEED:
@@ -353,8 +351,8 @@ class HeadingAlignment:
     def check_observed(self, est: Estimator, t_us: int) -> None:
         """One epoch of the observability rule (profiles without course checks)."""
         s = self._s
-        if (self.course_checks or est.yaw_bank is not None
-                or est.heading_aligned or s[_ORIGIN] == _NONE):
+        if (self.course_checks or est.yaw_bank is not None or est.heading_aligned
+                or s[_ORIGIN] == _NONE):
             return
         sd = self.cfg.init.aligned_sd
         if est.P[2, 2] >= sd * sd or s[_MOVED] > 3.0 * sd:

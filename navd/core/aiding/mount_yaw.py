@@ -22,8 +22,8 @@ take mu = 0 (applied to nothing): an IMU turned by less than 60 deg never shows 
 "between", and the rows bend the verdicts toward 0, but not to it.  The watch's mu beyond
 ``WATCH_K`` sigma and ``WATCH_MIN`` for ``WATCH_N`` measurements in a row says the IMU is
 turned (the benchmark's ground cases, seeds 1-3: never beyond 1.7 sigma; 20 deg mounts
-reach 4.5-4.8 sigma, reading 9-15 deg, and are told at 122-176 s, seeds 1-3; 10 deg mounts
-on 2 seeds of 3, at 239-365 s).
+reach 4.5-4.8 sigma, reading 9-15 deg, seeds 1-2, and are told at 122-176 s, seeds 1-3;
+10 deg mounts on 2 seeds of 3, at 239-365 s).
 """
 
 from __future__ import annotations
@@ -32,6 +32,8 @@ import math
 
 import numpy as np
 
+from navd.core.rotation import wrap_pi
+
 _MEAS_DT = 6.0  # s between measurements: travel_direction._TAUS' longest
 _MEAS_FLOOR = 3.0 * math.pi / 180.0  # rad, added to every measurement's sigma
 _GATE = 9.0  # chi-square(1), a measurement beyond it is not used (a GNSS glitch, a skid)
@@ -39,10 +41,6 @@ _GATE = 9.0  # chi-square(1), a measurement beyond it is not used (a GNSS glitch
 WATCH_K = 3.0
 WATCH_MIN = 5.0 * math.pi / 180.0  # rad: less is not worth a yaw sigma floored at P_mumu
 WATCH_N = 3
-
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 class MountYaw:
@@ -75,7 +73,7 @@ class MountYaw:
         """The IMU's accelerations put its yaw ``mu`` rad from the course (variance ``var``
         rad^2); a later turn restarts from its own verdict."""
         s = self._s
-        s[_MU] = _wrap(mu)
+        s[_MU] = wrap_pi(mu)
         s[_VAR] = var
         s[_T] = -math.inf
         s[_ON] = 1.0
@@ -87,14 +85,14 @@ class MountYaw:
         if not s[_ON] or not math.isfinite(z) or t_s - s[_T] < _MEAS_DT:
             return 0.0
         r = sd * sd + _MEAS_FLOOR * _MEAS_FLOOR
-        nu = _wrap(z - s[_MU])
+        nu = wrap_pi(z - s[_MU])
         if abs(nu) > 0.5 * math.pi or nu * nu > _GATE * (s[_VAR] + r):
             # (beyond 90 deg: a vehicle backing up, its course behind it)
             return 0.0
         s[_T] = t_s
         k = s[_VAR] / (s[_VAR] + r)
         d = k * nu
-        s[_MU] = _wrap(s[_MU] + d)
+        s[_MU] = wrap_pi(s[_MU] + d)
         s[_VAR] = (1.0 - k) * s[_VAR]
         # measurements in a row that put mu beyond the watch's bounds (:attr:`turned`)
         out = abs(s[_MU]) > max(WATCH_MIN, WATCH_K * math.sqrt(s[_VAR]))

@@ -228,11 +228,6 @@ class TravelDirection:
         """The last decisive epoch's yaw-error sigma, rad (from the sums' noise)."""
         return float(self._s[_RAW_SD])
 
-    @property
-    def decisive_error(self) -> float:
-        """The last decisive epoch's yaw error, true minus filter, rad."""
-        return float(self._s[_RAW_ERR])
-
     def yaw_right(self, p22: float) -> bool:
         """Whether the IMU's last verdict confirmed the yaw (within 60 deg) and the yaw's
         variance ``p22`` (rad^2) has not grown beyond ``_STALE`` since (a long rest without
