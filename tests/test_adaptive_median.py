@@ -6,11 +6,13 @@ from __future__ import annotations
 import tracemalloc
 
 import numpy as np
+import pytest
 
 from navd.config import EstimatorConfig
 from navd.core.aiding.adaptive_noise import AdaptiveNoise
 
 
+@pytest.mark.alloc
 def test_window_median_is_numpys_and_allocates_nothing() -> None:
     """GIVEN windows of NIS ratios (random, with refused epochs as inf, with ties),
     WHEN the window median is taken,

@@ -427,6 +427,7 @@ def test_estimator_flags_off_grid_and_uses_the_grid_on_it() -> None:
     assert str(dov_status(est)["dov_model"]).startswith("off grid: normal gravity")
 
 
+@pytest.mark.alloc
 def test_gnss_updates_with_a_grid_do_not_allocate() -> None:
     """GIVEN a car480 run and a DovGrid covering the track,
     WHEN the estimator steps through the samples (over 100 GNSS updates, on grid),

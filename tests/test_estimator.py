@@ -133,6 +133,7 @@ def test_velocity_jump_bursts_are_rejected_and_counted() -> None:
     assert raw.rmse(60.0)["vel_h_rmse_mps"] > s.rmse(60.0)["vel_h_rmse_mps"]
 
 
+@pytest.mark.alloc
 def test_steady_state_steps_do_not_allocate() -> None:
     """GIVEN the estimator warmed up on car480 with the heading from config,
     WHEN 10000 more IMU steps (with their GNSS fixes) run under tracemalloc,

@@ -410,6 +410,7 @@ def test_restart_on_gap_time_reversal_reset_and_bad_input() -> None:
 # ------------------------------------------------------------------- allocation
 
 
+@pytest.mark.alloc
 @pytest.mark.parametrize("mode", sorted(MODES))
 def test_steady_state_push_allocates_nothing(mode: str) -> None:
     """GIVEN a warmed-up Mctls in each mode, with a jump run exercising the robust path,

@@ -490,6 +490,7 @@ def test_multirotor_scenario_heading_stays_within_3_sigma(seed: int) -> None:
     assert np.mean(np.abs(err[aligned]) > 3.0 * sd[aligned]) <= 0.05
 
 
+@pytest.mark.alloc
 def test_steady_state_steps_with_the_bank_do_not_allocate() -> None:
     """GIVEN the estimator with the multirotor profile (bank running) warmed up on the
     multirotor scenario,
