@@ -17,9 +17,11 @@ velocity at this epoch less the corrected one after the last: no GNSS in it), ho
 north-east.  A sum is *decisive* when both exceed ``_K_SIG`` sigma (GNSS velocity noise,
 velocity random walk, and what the filter's tilt and accelerometer-bias sigma make over the
 time constant) and agree in size; then ``atan2(J x G, J . G)`` estimates the yaw error.
-``_CONFIRM_N`` decisive epochs in a row with the same verdict (within 60 deg / beyond 120 deg
-/ between) record it as :attr:`yaw_error` at :attr:`yaw_error_t` (a GNSS glitch moves G
-alone: it fails the size test, and it lasts less than the run).  The filter's later yaw
+``_CONFIRM_N`` decisive epochs with the same verdict (within 60 deg / beyond 120 deg
+/ between), none of another verdict between them and none more than ``_RUN_GAP_S`` after the
+last, record it as :attr:`yaw_error` at :attr:`yaw_error_t` (a GNSS glitch moves G alone: it
+fails the size test, and it lasts less than the run; an epoch that shows nothing does not
+end the run).  The filter's later yaw
 corrections rotate ``J`` and the recorded error with the yaw, so a yaw the checks turn by
 180 deg is known to be right at once; so does a yaw turned between epochs by more than the
 gyro turned it (another aid, a reset).  A gap of more than ``_MAX_GAP_S`` between epochs
@@ -44,6 +46,7 @@ _SIZE_TOL = 0.3  # |G| and |J| agree to this fraction (+ 3 sigma): else a glitch
 _CONFIRM_N = 5  # decisive epochs in a row with the same verdict
 _CONFIRM_S = 0.4  # ... spanning at least this long, s
 _MAX_GAP_S = 1.5
+_RUN_GAP_S = 1.0  # s: a run of verdicts ends when no epoch was decisive for longer
 _RIGHT = 60.0 * math.pi / 180.0  # |error| below: the yaw points the way the vehicle does
 _FLIP = 120.0 * math.pi / 180.0  # |error| above: the yaw is about 180 deg off
 _RESTART_RUN = 30.0 * math.pi / 180.0  # an epoch turning the yaw more: a realignment
@@ -165,8 +168,13 @@ def _judge(s: Arr, sums: Arr, t_s: float, dt: float, dgn: float, dge: float, din
             # both changes carry ~sig: the angle between them, sqrt(2) sig / |G|
             err_sd = math.sqrt(2.0) * sig / ng
     if best < 0.0:
-        s[_CLS] = -1.0
-        s[_RUN_N] = 0.0
+        # an epoch that shows nothing (below the noise, or sizes apart) does not end a run:
+        # one such epoch inside a turn kept a backwards IMU flagged 180 deg off for 98 s
+        # (car480, its first turn's five flipped verdicts broken at 41.7 s); a run whose
+        # last decisive epoch is older than _RUN_GAP_S does end
+        if t_s - s[_RAW_T] > _RUN_GAP_S:
+            s[_CLS] = -1.0
+            s[_RUN_N] = 0.0
         return False
     s[_RAW_ERR] = err
     s[_RAW_SD] = err_sd
