@@ -236,7 +236,7 @@ def test_a_backwards_imu_is_told_at_the_first_turn() -> None:
     """GIVEN car480 with its IMU turned by 180 deg about down and no [imu] mount_yaw_deg
     (default config), seeds 1-2, whose first turn (36-54 s) shows the flip in a run of
     decisive epochs broken by one that shows nothing (seed 1: 41.4-42.7 s, broken at 41.7
-    s; the run then restarted and the filter's tilt bent 15-23 deg to fit the reversed
+    s; the run then restarted and the filter's roll bent to 23 deg to fit the reversed
     turn: flagged 180 deg off until the second turn, 98 s; seed 3 shows no decisive epoch
     before its tilt bends and is still told only at 98 s, docs/results.md),
     THEN from 50 s on no instant is flagged aligned with the IMU axes' heading more than 10
