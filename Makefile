@@ -25,11 +25,12 @@ kernels: $(STAMP)
 run demo: kernels
 	$(BIN)/navd demo
 
-# the allocation tests alone in this process: tracemalloc counts every thread, and an xdist
-# worker's execnet thread allocates when more tests arrive (a 7.6 kB peak in CI)
+# the allocation and wall-clock tests alone in this process: tracemalloc counts every thread,
+# and an xdist worker's execnet thread allocates when more tests arrive (a 7.6 kB peak in CI);
+# a timing bound measured beside another worker measures that worker too
 test: kernels
-	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 -m "not alloc"
-	$(BIN)/python -m pytest -q -m alloc
+	$(BIN)/python -m pytest -q -n auto --maxprocesses 4 -m "not alloc and not realtime"
+	$(BIN)/python -m pytest -q -m "alloc or realtime"
 
 bench: kernels
 	$(BIN)/python benchmarks/table1.py --runs 3

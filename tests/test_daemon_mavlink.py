@@ -159,6 +159,7 @@ def test_ready_first_then_stopping_on_sigterm_and_clean_exit(observed: Observed)
     assert any(line.startswith("STATUS=") for _, lines in n.messages for line in lines)
 
 
+@pytest.mark.realtime
 def test_watchdog_every_half_interval_while_data_flows_and_none_when_stalled(
         observed: Observed) -> None:
     """GIVEN one daemon life cycle (a 40 s car run streamed over MAVLink, a stall, SIGTERM),

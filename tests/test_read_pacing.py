@@ -117,6 +117,7 @@ def _imu_frames(n: int) -> list[bytes]:
     return out
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("paced", [True, False])
 def test_paced_udp_link_reads_everything_in_order_with_fewer_wake_ups(paced: bool) -> None:
     """GIVEN a navd udpin link receiving 1000 HIGHRES_IMU datagrams at 1 kHz,

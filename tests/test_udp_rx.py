@@ -254,6 +254,7 @@ def _run_stream(threaded: bool, frames: list[bytes], period_s: float) -> _Record
     return rec
 
 
+@pytest.mark.realtime
 def test_the_thread_hands_on_what_a_read_on_the_loop_does() -> None:
     """GIVEN 1000 HIGHRES_IMU datagrams at 1 kHz in real time, 10 GPS_INPUT and two junk
     datagrams between them,
