@@ -92,9 +92,21 @@ def matched_imu_config(imu: ImuSpec) -> list[str]:
 
 
 def score_run(run: SimRun, cfg: EstimatorConfig, rate_hz: float = 10.0,
-              est: Estimator | None = None) -> Score:
-    """Push every sample of ``run`` through an estimator and sample its errors."""
+              est: Estimator | None = None, mount_exact: bool | None = None) -> Score:
+    """Push every sample of ``run`` through an estimator and sample its errors.
+
+    ``mount_exact``: the simulated IMU sits on the vehicle exactly as the config states, so
+    the yaw sigma scored leaves out what the config's ``[imu] mount_yaw_sd_deg`` adds for an
+    installation's error (``NavSolution.yaw_sd_installation_rad``): the error it allows for
+    is not there, and with it the yaw sigma would cover the filter's own errors up to
+    three times the installation's.  None: whether the scenario's ``[imu] mount_*_deg`` are
+    the config's."""
     e = est if est is not None else Estimator(cfg)
+    if mount_exact is None:
+        sim = run.scenario.imu
+        mount_exact = all(
+            abs(math.radians(getattr(sim, f"{k}_deg")) - getattr(e.cfg.imu, k)) < 1e-9
+            for k in ("mount_roll", "mount_pitch", "mount_yaw"))
     t0 = int(run.truth_t_us[0])
     dt_truth = int(run.truth_t_us[1] - run.truth_t_us[0])
     rows: list[tuple[float, ...]] = []
@@ -115,7 +127,10 @@ def score_run(run: SimRun, cfg: EstimatorConfig, rate_hz: float = 10.0,
         h = float(run.truth_pos[k, 2])
         dp = e.pos - run.truth_pos[k]
         dpn = (dp[0] * (r_m + h), dp[1] * (r_n + h) * math.cos(run.truth_pos[k, 0]), -dp[2])
-        rows.append((sol.t_us * 1e-6, *(dlt * R2D), *(np.array(sol.att_sd_rad) * R2D), *dv,
+        sd = np.array(sol.att_sd_rad)
+        if mount_exact:
+            sd[2] = math.sqrt(max(sd[2] * sd[2] - sol.yaw_sd_installation_rad ** 2, 0.0))
+        rows.append((sol.t_us * 1e-6, *(dlt * R2D), *(sd * R2D), *dv,
                      *dpn, float(phi @ np.linalg.solve(patt, phi)),
                      float(dv @ np.linalg.solve(pvel, dv)), float(sol.heading_aligned)))
     a = np.array(rows) if rows else np.zeros((0, 18))

@@ -98,6 +98,10 @@ class NavSolution:
         heading_initialised: the heading has a value from a trusted source (config, a first
             GNSS course, observability), confirmed or not; always True when
             ``heading_aligned`` is.
+        yaw_sd_installation_rad: the share of ``att_sd_rad[2]`` (added in quadrature) that
+            is the IMU's yaw on the vehicle as installed (``[imu] mount_yaw_sd_deg``) where
+            the heading comes from the GNSS course; 0 elsewhere.  A simulator that mounts
+            the IMU exactly as stated scores against the rest.
     """
 
     t_us: int
@@ -121,6 +125,7 @@ class NavSolution:
     gnss_age_us: int = -1
     heading_initialised: bool = False
     heading_resets: int = 0
+    yaw_sd_installation_rad: float = 0.0
 
     def heading_good(self, max_sd_rad: float) -> bool:
         """The heading is initialised *and* its 1-sigma is within ``max_sd_rad``: what an

@@ -144,6 +144,10 @@ class ImuSection:
     mount_roll: float = _f(0.0, "deg")
     mount_pitch: float = _f(0.0, "deg")
     mount_yaw: float = _f(0.0, "deg")
+    # 1-sigma of mount_yaw as installed (stated or left 0): where the course is the
+    # heading it is the vehicle's, and no motion tells an IMU a few degrees off it, so
+    # the reported yaw sigma carries this (docs/design.md §4, "The installation's share")
+    mount_yaw_sd: float = _f(1.0, "deg")
     max_accel: float = _f(50.0 * G0, "mps2")
     max_rate: float = _f(2000.0, "dps")
     # at rest (IMU still over 10 s, Allan-type test), measure the gyro offset and feed it to
@@ -155,6 +159,8 @@ class ImuSection:
         for key in ("mount_roll", "mount_pitch", "mount_yaw"):
             check(abs(getattr(self, key)) <= math.pi + 1e-9, "imu", f"{key}_deg",
                   "in [-180, 180] (deg)")
+        check(0.0 <= self.mount_yaw_sd <= math.radians(30.0) + 1e-12, "imu",
+              "mount_yaw_sd_deg", "in [0, 30] (deg)")
 
     @property
     def mount(self) -> tuple[float, float, float]:

@@ -721,6 +721,9 @@ class Estimator:
     def solution(self) -> NavSolution:
         """The current navigation solution (allocates a small frozen object, not arrays)."""
         r, p, y, qw, qx, qy, qz, sr, sp, sy = attitude_outputs(self.mat_nb, self.P, self._M)
+        # the IMU's axes are off the course-defined heading by the installation's error
+        inst = self.gnss.course.installation_var
+        sy = math.sqrt(sy * sy + inst)
         v = self.vel_n
         bg = self.bias_g
         ba = self.bias_a
@@ -745,7 +748,8 @@ class Estimator:
             heading_aligned=self.heading_aligned,
             rate_b=(float(w[0]), float(w[1]), float(w[2])), pos_sd_m=pos_sd,
             vel_sd_mps=vel_sd, gnss_age_us=age, heading_resets=self.heading_resets,
-            heading_initialised=self.heading_aligned or self.gnss.course.align.yaw_set)
+            heading_initialised=self.heading_aligned or self.gnss.course.align.yaw_set,
+            yaw_sd_installation_rad=math.sqrt(inst))
 
     @property
     def heading_resets(self) -> int:

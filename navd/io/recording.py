@@ -221,7 +221,8 @@ class SolutionJsonlWriter:
             "accel_bias_mps2": s.accel_bias_mps2, "heading_aligned": s.heading_aligned,
             "heading_initialised": s.heading_initialised,
             "rate_b": s.rate_b, "pos_sd_m": s.pos_sd_m, "vel_sd_mps": s.vel_sd_mps,
-            "gnss_age_us": s.gnss_age_us, "heading_resets": s.heading_resets}) + "\n")
+            "gnss_age_us": s.gnss_age_us, "heading_resets": s.heading_resets,
+            "yaw_sd_installation_rad": s.yaw_sd_installation_rad}) + "\n")
 
 
 _NAN3 = (math.nan, math.nan, math.nan)  # files written before the sigmas were recorded
@@ -250,5 +251,6 @@ def read_solutions_jsonl(path: str | Path) -> list[NavSolution]:
                 gnss_age_us=int(d.get("gnss_age_us", -1)),
                 heading_resets=int(d.get("heading_resets", 0)),
                 heading_initialised=bool(d.get("heading_initialised",
-                                               d["heading_aligned"]))))
+                                               d["heading_aligned"])),
+                yaw_sd_installation_rad=float(d.get("yaw_sd_installation_rad", 0.0))))
     return out

@@ -201,6 +201,7 @@ class CourseHeading:
         self.sd_beta = (c.heading.sideslip_sd if c.filter.profile in ("ground", "boat")
                         else c.heading.crab_sd)
         self._lever_var = c.gnss.lever_arm_sd * c.gnss.lever_arm_sd
+        self._install_var = c.imu.mount_yaw_sd * c.imu.mount_yaw_sd
         self.status = "off"
         self.rejects = 0
         # this epoch's course row is the reversed course (a reversing the IMU confirmed)
@@ -239,6 +240,16 @@ class CourseHeading:
         """The IMU's x axis from the course, rad (right +), learnt once the IMU showed it
         turned on the vehicle; NaN until then."""
         return self.mount.mu if self.mount.active else math.nan
+
+    @property
+    def installation_var(self) -> float:
+        """What the IMU's yaw on the vehicle as installed (``[imu] mount_yaw_sd_deg``) adds
+        to the reported yaw variance, rad^2: where the course is the heading the filter's
+        yaw is the vehicle's, and the IMU's axes are off it by the installation's error,
+        which no course row reduces.  0 where the course is not used (the yaw bank's and the
+        travel-direction monitor's yaw come from the IMU's own accelerations) and once the
+        IMU's yaw on the vehicle is learnt (its variance floors the yaw's instead)."""
+        return self._install_var if self.enabled and not self.mount.active else 0.0
 
     def _to_imu(self, vn: float, ve: float) -> tuple[float, float]:
         """A horizontal velocity (m/s, north, east) turned by the IMU's learnt yaw on the
