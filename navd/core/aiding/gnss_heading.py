@@ -42,7 +42,7 @@ from navd.core.aiding.base import (
 from navd.core.aiding.course_learner import CourseLearner, K, S
 from navd.core.aiding.course_noise import CourseNoise
 from navd.core.aiding.heading_alignment import FLIPPED_RECENT_S, HeadingAlignment
-from navd.core.aiding.mount_yaw import MountYaw
+from navd.core.aiding.mount_yaw import MountYaw, installation_moment
 from navd.core.aiding.travel_direction import TravelDirection
 from navd.core.chi2 import chi2_quantile
 from navd.core.errors import I_BA
@@ -64,6 +64,13 @@ _DIRECTION_RECENT_S = 10.0
 _IMU_TURN_SD = 20.0 * math.pi / 180.0
 # ... and the course rows wait for it to be learnt to this sigma, rad (mount_yaw.py)
 _MOUNT_ROWS_SD = 5.0 * math.pi / 180.0
+# the mount watch's mu is short of the mount by about this share of it (its rows bend it
+# toward 0; car480, seeds 1-3: 10 deg mounts read 6-9.4 deg when told; mount_yaw.py) ...
+_WATCH_BENT = 0.3
+# ... and up to this mu the learner starts from it, the course rows going on at once (20 deg
+# mounts, read 11.6-13 deg when told, learnt by the rows 13.7 deg, 2.8 sigma off: beyond, as
+# a verdict of the travel-direction monitor), rad
+_WATCH_SMALL = 10.0 * math.pi / 180.0
 # a learnt yaw on the vehicle within this many of its sigmas of 0, once below
 # _MOUNT_ROWS_SD, says the turn was told wrongly: the IMU is straight after all
 _STRAIGHT_K = 2.0
@@ -248,8 +255,19 @@ class CourseHeading:
         yaw is the vehicle's, and the IMU's axes are off it by the installation's error,
         which no course row reduces.  0 where the course is not used (the yaw bank's and the
         travel-direction monitor's yaw come from the IMU's own accelerations) and once the
-        IMU's yaw on the vehicle is learnt (its variance floors the yaw's instead)."""
-        return self._install_var if self.enabled and not self.mount.active else 0.0
+        IMU's yaw on the vehicle is learnt (its variance floors the yaw's instead).  While
+        the mount watch runs (ground), the installation's prior is a mixture with a wide
+        tail, weighed by what the watch has measured (:func:`installation_moment`): a few
+        degrees that it sees but does not yet tell widen the sigma."""
+        if not self.enabled or self.mount.active:
+            return 0.0
+        w = self.mount_watch
+        if w is None or not w.active or self._watch_off[0]:
+            return self._install_var
+        # the watch's mu reads about (1 - _WATCH_BENT) of the mount: scaled back
+        g = 1.0 / (1.0 - _WATCH_BENT)
+        return installation_moment(self._install_var, g * w.mu, g * g * w.var,
+                                   g * g * _IMU_TURN_SD * _IMU_TURN_SD)
 
     def _to_imu(self, vn: float, ve: float) -> tuple[float, float]:
         """A horizontal velocity (m/s, north, east) turned by the IMU's learnt yaw on the
@@ -489,8 +507,7 @@ class CourseHeading:
                 self.mount_watch.start(0.0, _IMU_TURN_SD * _IMU_TURN_SD)
             self._learn_mount(est, g, self.mount_watch)
             if self.mount_watch.turned:
-                # the IMU's yaw on the vehicle, as the watch reads it (bent toward 0)
-                self._turn_to_imu(est, self.mount_watch.mu)
+                self._watch_told(est, g.t_us * 1e-6)
         use_course = self._water_checks(est, g, s_sd)
         m, swapped = self._fill_velocity(est, g, s_sd)
         if not use_course:
@@ -654,7 +671,8 @@ class CourseHeading:
         there with a sigma of ``_IMU_TURN_SD`` (mount_yaw.py; counted
         ``course_not_heading_imu``; status ``imu_yaw_on_vehicle_deg``)."""
         mt = self.mount
-        mt.start((mt.mu if mt.active else 0.0) + err, _IMU_TURN_SD * _IMU_TURN_SD)
+        mt.start((mt.mu if mt.active else 0.0) + err, _IMU_TURN_SD * _IMU_TURN_SD,
+                 est.t_us * 1e-6)
         _turn_yaw(est, err)
         P = est.P
         P[2, 2] = max(self.cfg.init.heading_sd, _IMU_TURN_SD) ** 2
@@ -675,6 +693,34 @@ class CourseHeading:
         # the slip and the z gyro's scale were learnt from a course that was not this yaw's
         self.learn.reset()
         est.gyro_sf[SF_SCALE_Z] = 0.0
+        self.noise.restart_chain()
+        self.align.imu_turned(est)
+        est.counters["course_not_heading_imu"] += 1
+
+    def _watch_told(self, est: Estimator, t_s: float) -> None:
+        """The mount watch says the IMU is turned by its mu (beyond 3 sigma and 5 deg from
+        0).  Where that mu is within ``_WATCH_SMALL`` and, widened for how far the watch's
+        rows bend it toward 0 (``_WATCH_BENT``), its sigma within ``_MOUNT_ROWS_SD``, the
+        learner starts there
+        and the course rows go on at once at course + mu: the yaw turns by mu, its variance
+        at least the start's, and the fixes' tilt and bias are kept (at 5-20 deg they were
+        bent little; widening the yaw to ``_IMU_TURN_SD`` and dropping the rows until it was
+        relearnt let the heading from accelerations alone wander 40-75 deg off at sigma 20
+        deg: car480, a 5 deg mount, seed 1, told at 377 s).  Else as a verdict of the
+        travel-direction monitor (:meth:`_turn_to_imu`)."""
+        w = self.mount_watch
+        assert w is not None
+        mu = w.mu
+        var = w.var + (_WATCH_BENT * mu) ** 2
+        if abs(mu) > _WATCH_SMALL or var >= _MOUNT_ROWS_SD * _MOUNT_ROWS_SD:
+            self._turn_to_imu(est, mu)
+            return
+        self.mount.start(mu, var, t_s)
+        _shift_yaw(est, mu)
+        P = est.P
+        if P[2, 2] < var:
+            P[2, 2] = var
+        self.rejects = 0
         self.noise.restart_chain()
         self.align.imu_turned(est)
         est.counters["course_not_heading_imu"] += 1
@@ -701,7 +747,9 @@ class CourseHeading:
             _shift_yaw(est, d)
             est.counters["imu_yaw_on_vehicle_learnt"] += 1
             sd = math.sqrt(mt.var)
-            if sd < _MOUNT_ROWS_SD and abs(mt.mu) < _STRAIGHT_K * sd:
+            # (once it has learnt: a turn the watch told starts within _MOUNT_ROWS_SD)
+            if (sd < _MOUNT_ROWS_SD and mt.var < 0.5 * mt.var_start
+                    and abs(mt.mu) < _STRAIGHT_K * sd):
                 self._imu_straight(est)
 
     def _imu_straight(self, est: Estimator) -> None:

@@ -37,7 +37,7 @@ from navd.core.rotation import wrap_pi
 _MEAS_DT = 6.0  # s between measurements: travel_direction._TAUS' longest
 _MEAS_FLOOR = 3.0 * math.pi / 180.0  # rad, added to every measurement's sigma
 _GATE = 9.0  # chi-square(1), a measurement beyond it is not used (a GNSS glitch, a skid)
-(_MU, _VAR, _T, _ON, _RUN) = range(5)
+(_MU, _VAR, _T, _ON, _RUN, _T0, _V0) = range(7)
 WATCH_K = 3.0
 WATCH_MIN = 5.0 * math.pi / 180.0  # rad: less is not worth a yaw sigma floored at P_mumu
 WATCH_N = 3
@@ -48,12 +48,13 @@ class MountYaw:
     loop rebinds no Python objects."""
 
     def __init__(self) -> None:
-        self._s = np.zeros(5)
+        self._s = np.zeros(7)
         self.reset()
 
     def reset(self) -> None:
         self._s[:] = 0.0
         self._s[_T] = -math.inf
+        self._s[_T0] = math.nan
 
     @property
     def active(self) -> bool:
@@ -69,14 +70,26 @@ class MountYaw:
         """Its variance, rad^2."""
         return float(self._s[_VAR])
 
-    def start(self, mu: float, var: float) -> None:
+    @property
+    def t_start_s(self) -> float:
+        """When it was last started, s (NaN: never)."""
+        return float(self._s[_T0])
+
+    @property
+    def var_start(self) -> float:
+        """The variance it was started with, rad^2."""
+        return float(self._s[_V0])
+
+    def start(self, mu: float, var: float, t_s: float = math.nan) -> None:
         """The IMU's accelerations put its yaw ``mu`` rad from the course (variance ``var``
-        rad^2); a later turn restarts from its own verdict."""
+        rad^2) at ``t_s``; a later turn restarts from its own verdict."""
         s = self._s
         s[_MU] = wrap_pi(mu)
         s[_VAR] = var
         s[_T] = -math.inf
         s[_ON] = 1.0
+        s[_T0] = t_s
+        s[_V0] = var
 
     def measure(self, z: float, sd: float, t_s: float) -> float:
         """A decisive epoch's mu ``z`` rad with its sigma ``sd`` rad at ``t_s``; returns
@@ -104,3 +117,49 @@ class MountYaw:
         """Whether the last ``WATCH_N`` measurements each left mu beyond ``WATCH_K`` sigma
         and ``WATCH_MIN`` from 0 (the watch's verdict: the IMU is turned)."""
         return bool(self._s[_RUN] >= WATCH_N)
+
+
+# The installation's prior, as a mixture (:func:`installation_moment`): most IMUs are fixed
+# within ``[imu] mount_yaw_sd_deg`` of the vehicle's axis, some are not (a bracket bent, a
+# board screwed in by eye); a Gaussian of 1 deg alone makes a 10 deg mount a 10-sigma
+# event that no evidence short of the watch's verdict can move.
+# One in fifty: the prior's own moment (1.73 deg with the 1 deg core) leaves a straight IMU's
+# heading usable at alignment ([init] aligned_sd_deg 2); 0.1 covered more 3-10 deg mounts
+# before they were told but kept a straight IMU's heading above 2 deg until 66-98 s into
+# car480, aligned at 4.1 s (docs/design.md §4, "The installation's share").
+TAIL_P = 0.02  # the share of installations in the tail
+TAIL_SD = 10.0 * math.pi / 180.0  # rad: its sigma (turns beyond ~20 deg the watch tells)
+
+
+def installation_moment(core_var: float, mu: float, var: float, start_var: float) -> float:
+    """The second moment of the IMU's yaw on the vehicle about 0, rad^2: what the reported
+    yaw (the course's, taken to be the IMU's) is off by, given the installation's prior
+    (``core_var`` rad^2 with probability 1 - ``TAIL_P``, ``TAIL_SD`` with ``TAIL_P``) and
+    the watch's estimate ``mu`` rad with variance ``var`` rad^2, started at 0 with
+    ``start_var`` rad^2 (whose prior is taken out, leaving the measurements' likelihood;
+    with none yet, the prior's own moment).  ``core_var`` 0 (an IMU stated boresighted)
+    has no tail: 0.  Never below ``core_var``: the watch's rows take the mount to be 0 and
+    bend its verdicts toward 0 (module doc), so evidence for a small mount is weaker than
+    it states."""
+    if core_var <= 0.0:
+        return 0.0
+    tail_var = max(TAIL_SD * TAIL_SD, core_var)
+    prior = (1.0 - TAIL_P) * core_var + TAIL_P * tail_var
+    if not (math.isfinite(mu) and math.isfinite(var)) or var <= 0.0:
+        return prior
+    # the measurements' information, rad^-2 (the watch's start taken out)
+    lam = max(1.0 / var - 1.0 / start_var, 0.0)
+    # per component k, with the likelihood N(mu_l; m, 1/lam) written through lam so that no
+    # evidence (lam 0) is the prior: the weight's log (less common terms) and the posterior
+    # second moment about 0; a_k = 1 + core_k * lam
+    b = mu / var  # mu_l * lam (the watch started at 0), rad^-1
+    a0 = 1.0 + core_var * lam
+    a1 = 1.0 + tail_var * lam
+    l0 = math.log(1.0 - TAIL_P) - 0.5 * math.log(a0) + 0.5 * core_var * b * b / a0
+    l1 = math.log(TAIL_P) - 0.5 * math.log(a1) + 0.5 * tail_var * b * b / a1
+    w1 = 1.0 / (1.0 + math.exp(max(min(l0 - l1, 700.0), -700.0)))
+    m0 = core_var * b / a0
+    m1 = tail_var * b / a1
+    e0 = m0 * m0 + core_var / a0
+    e1 = m1 * m1 + tail_var / a1
+    return max(core_var, (1.0 - w1) * e0 + w1 * e1)
