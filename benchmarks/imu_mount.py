@@ -74,6 +74,11 @@ def run_case(case: tuple[float, int, float, str, str]) -> dict[str, Any]:
         "h_rms": float(np.sqrt(np.mean(e[late, 2] ** 2))),
         "h_beyond": 100.0 * float(beyond[late, 2].mean()),
         "aligned": 100.0 * float(al[late].mean()),
+        # what the outputs call usable (NavSolution.heading_good): aligned, sigma within
+        # [init] aligned_sd_deg; the largest error then
+        "max_usable": (float(np.abs(e[use, 2]).max()) if (use := late & al & (
+            sd[:, 2] <= math.degrees(est.cfg.init.aligned_sd) + 1e-9)).any() else math.nan),
+        "usable": 100.0 * float(use[late].mean()),
         "max_al": float(np.abs(e[late & al, 2]).max()) if (late & al).any() else math.nan,
         "rp_rms": [float(np.sqrt(np.mean(e[late, i] ** 2))) for i in (0, 1)],
         "rp_beyond": [100.0 * float(beyond[late, i].mean()) for i in (0, 1)],
@@ -98,12 +103,13 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{a.scenario}, from {a.from_s:.0f} s on (errors against the IMU's axes; default "
           f"config, {a.profile})")
     print("mount seed  told_s  mu +- sd (deg)   after told: rms >3s %   hdg rms  >3s %  "
-          "aligned %  max al   roll/pitch rms  >3s %")
+          "aligned %  max al  usable %  max us   roll/pitch rms  >3s %")
     for r in rows:
         print(f"{r['mount']:5.0f} {r['seed']:4d} {r['told_s']:7.0f} {r['mu_deg']:7.2f} +- "
               f"{r['mu_sd_deg']:4.2f}   {r['post_rms']:15.2f} {r['post_beyond']:6.1f}   "
               f"{r['h_rms']:7.2f} {r['h_beyond']:6.1f} "
-              f"{r['aligned']:9.0f} {r['max_al']:7.1f}   {r['rp_rms'][0]:.2f} / "
+              f"{r['aligned']:9.0f} {r['max_al']:7.1f} {r['usable']:9.0f} {r['max_usable']:7.1f}   "
+              f"{r['rp_rms'][0]:.2f} / "
               f"{r['rp_rms'][1]:.2f}     {r['rp_beyond'][0]:.1f} / {r['rp_beyond'][1]:.1f}")
     print(f"({time.monotonic() - t0:.0f} s)")
     return 0
