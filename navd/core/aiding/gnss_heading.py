@@ -701,13 +701,12 @@ class CourseHeading:
         """The mount watch says the IMU is turned by its mu (beyond 3 sigma and 5 deg from
         0).  Where that mu is within ``_WATCH_SMALL`` and, widened for how far the watch's
         rows bend it toward 0 (``_WATCH_BENT``), its sigma within ``_MOUNT_ROWS_SD``, the
-        learner starts there
-        and the course rows go on at once at course + mu: the yaw turns by mu, its variance
-        at least the start's, and the fixes' tilt and bias are kept (at 5-20 deg they were
-        bent little; widening the yaw to ``_IMU_TURN_SD`` and dropping the rows until it was
-        relearnt let the heading from accelerations alone wander 40-75 deg off at sigma 20
-        deg: car480, a 5 deg mount, seed 1, told at 377 s).  Else as a verdict of the
-        travel-direction monitor (:meth:`_turn_to_imu`)."""
+        learner starts there and the course rows go on at once at course + mu: the yaw
+        turns by mu, its variance at least the start's, and the fixes' tilt and bias are
+        kept (at 5-10 deg they were bent little; widening the yaw to ``_IMU_TURN_SD`` and
+        dropping the rows until it was relearnt let the heading from accelerations alone
+        wander 23-75 deg off at sigma 20 deg: car480, a -5 deg mount, seed 1, told at 377
+        s).  Else as a verdict of the travel-direction monitor (:meth:`_turn_to_imu`)."""
         w = self.mount_watch
         assert w is not None
         mu = w.mu

@@ -23,7 +23,10 @@ take mu = 0 (applied to nothing): an IMU turned by less than 60 deg never shows 
 ``WATCH_K`` sigma and ``WATCH_MIN`` for ``WATCH_N`` measurements in a row says the IMU is
 turned (the benchmark's ground cases, seeds 1-3: never beyond 1.7 sigma; 20 deg mounts
 reach 4.5-4.8 sigma, reading 9-15 deg, seeds 1-2, and are told at 122-176 s, seeds 1-3;
-10 deg mounts on 2 seeds of 3, at 239-365 s).
+10 deg mounts on 2 seeds of 3, at 239-365 s).  A told mu up to 10 deg starts the learner
+with the course rows kept on (gnss_heading.py, ``_watch_told``); before any verdict the
+watch's likelihood weighs the installation's prior, a mixture (:func:`installation_moment`),
+into the reported yaw sigma.
 """
 
 from __future__ import annotations
