@@ -167,13 +167,11 @@ def test_an_imu_a_few_degrees_off_the_vehicle_is_covered_by_the_installation_sig
     assert sols and all(s.yaw_sd_installation_rad == 0.0 for s in sols)
 
 
-def test_a_turn_told_wrongly_is_dropped_and_the_course_is_the_heading_again(
-        monkeypatch: pytest.MonkeyPatch) -> None:
-    """GIVEN car480 with its IMU straight, seed 1, and a turn of 8 deg told at 100 s as
-    the mount watch would on a false alarm (forced: the benchmark's cases give none), THEN
-    the learnt yaw on the vehicle comes back to 0, the turn is dropped (counted once), and
-    from 300 s on the heading is as without it: within 0.3 deg RMS, flagged aligned at
-    >= 90 % of the instants, within 3 sigma at >= 99 %."""
+def _with_a_forced_turn(monkeypatch: pytest.MonkeyPatch, t0_s: float,
+                        tell: Any) -> tuple[Any, list[bool]]:
+    """car480, IMU straight, seed 1, scored on the ground profile, with ``tell(course,
+    est, g)`` called before the GNSS velocity update of every fix from ``t0_s`` on until
+    it returns True (a turn forced as the mount watch's false alarm would tell it)."""
     from navd.core.aiding import gnss_heading as gh
 
     fuse = gh.CourseHeading.fuse_with_velocity
@@ -181,14 +179,27 @@ def test_a_turn_told_wrongly_is_dropped_and_the_course_is_the_heading_again(
 
     def forced(self: Any, est: Any, g: Any, s_sd: float, hold: int,
                hold_mask: int = 0) -> None:
-        if not told[0] and g.t_us * 1e-6 >= 100.0:
-            told[0] = True
-            self._turn_to_imu(est, 8.0 * DEG)
+        if not told[0] and g.t_us * 1e-6 >= t0_s:
+            told[0] = bool(tell(self, est, g))
         fuse(self, est, g, s_sd, hold, hold_mask)
 
     monkeypatch.setattr(gh.CourseHeading, "fuse_with_velocity", forced)
     run = generate(load_scenario("car480"), seed=1, progress=False)
-    r = rb.score_sim(run, "ground")
+    return rb.score_sim(run, "ground"), told
+
+
+def test_a_turn_told_wrongly_is_dropped_and_the_course_is_the_heading_again(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """GIVEN car480 with its IMU straight, seed 1, and a turn of 8 deg told at 100 s as
+    the mount watch would on a false alarm (forced: the benchmark's cases give none), THEN
+    the learnt yaw on the vehicle comes back to 0, the turn is dropped (counted once), and
+    from 300 s on the heading is as without it: within 0.3 deg RMS, flagged aligned at
+    >= 90 % of the instants, within 3 sigma at >= 99 %."""
+    def tell(course: Any, est: Any, g: Any) -> bool:
+        course._turn_to_imu(est, 8.0 * DEG)
+        return True
+
+    r, told = _with_a_forced_turn(monkeypatch, 100.0, tell)
     assert told[0]
     assert r.counters.get("imu_yaw_on_vehicle_dropped", 0) == 1
     late = r.t_s >= 300.0
@@ -241,23 +252,15 @@ def test_a_small_turn_told_wrongly_comes_back_and_is_dropped(
     course + 6 deg; the benchmark's cases give none), THEN the learner comes back toward 0
     and the turn is dropped (counted once) before 400 s, the heading within 3 sigma at
     >= 99 % of the instants from 150 s on, and from 400 s as without it: within 0.3 deg RMS."""
-    from navd.core.aiding import gnss_heading as gh
+    def tell(course: Any, est: Any, g: Any) -> bool:
+        w = course.mount_watch
+        if w is None or not w.active:
+            return False
+        w.start(6.0 * DEG, (1.7 * DEG) ** 2)
+        course._watch_told(est)
+        return True
 
-    fuse = gh.CourseHeading.fuse_with_velocity
-    told = [False]
-
-    def forced(self: Any, est: Any, g: Any, s_sd: float, hold: int,
-               hold_mask: int = 0) -> None:
-        w = self.mount_watch
-        if not told[0] and g.t_us * 1e-6 >= 150.0 and w is not None and w.active:
-            told[0] = True
-            w.start(6.0 * DEG, (1.7 * DEG) ** 2)
-            self._watch_told(est, g.t_us * 1e-6)
-        fuse(self, est, g, s_sd, hold, hold_mask)
-
-    monkeypatch.setattr(gh.CourseHeading, "fuse_with_velocity", forced)
-    run = generate(load_scenario("car480"), seed=1, progress=False)
-    r = rb.score_sim(run, "ground")
+    r, told = _with_a_forced_turn(monkeypatch, 150.0, tell)
     assert told[0]
     assert r.counters.get("course_not_heading_imu", 0) == 1
     assert r.counters.get("imu_yaw_on_vehicle_dropped", 0) == 1

@@ -507,7 +507,7 @@ class CourseHeading:
                 self.mount_watch.start(0.0, _IMU_TURN_SD * _IMU_TURN_SD)
             self._learn_mount(est, g, self.mount_watch)
             if self.mount_watch.turned:
-                self._watch_told(est, g.t_us * 1e-6)
+                self._watch_told(est)
         use_course = self._water_checks(est, g, s_sd)
         m, swapped = self._fill_velocity(est, g, s_sd)
         if not use_course:
@@ -697,7 +697,7 @@ class CourseHeading:
         self.align.imu_turned(est)
         est.counters["course_not_heading_imu"] += 1
 
-    def _watch_told(self, est: Estimator, t_s: float) -> None:
+    def _watch_told(self, est: Estimator) -> None:
         """The mount watch says the IMU is turned by its mu (beyond 3 sigma and 5 deg from
         0).  Where that mu is within ``_WATCH_SMALL`` and, widened for how far the watch's
         rows bend it toward 0 (``_WATCH_BENT``), its sigma within ``_MOUNT_ROWS_SD``, the
@@ -714,7 +714,7 @@ class CourseHeading:
         if abs(mu) > _WATCH_SMALL or var >= _MOUNT_ROWS_SD * _MOUNT_ROWS_SD:
             self._turn_to_imu(est, mu)
             return
-        self.mount.start(mu, var, t_s)
+        self.mount.start(mu, var, est.t_us * 1e-6)
         _shift_yaw(est, mu)
         P = est.P
         if P[2, 2] < var:
