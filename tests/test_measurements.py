@@ -18,6 +18,7 @@ import math
 import numpy as np
 import pytest
 
+from navd.core import state as st
 from navd.core.aiding import gnss_heading, gnss_position, gnss_velocity
 from navd.core.kalman import gated_update, inject
 from navd.core.output import euler_error_map
@@ -634,3 +635,65 @@ def test_velocity_noise_of_an_uncertain_lever_arm() -> None:
     gnss_velocity.fill(H, z, R1, C, np.zeros(3), np.zeros(3), np.zeros(3), 1.0, 2.0, 0.5,
                        0.1, 0.2, s2)
     np.testing.assert_array_equal(R1, R0)
+
+
+def _ring_of(a_of_t: list[tuple[float, np.ndarray]], t_end_s: float, dt_s: float) -> np.ndarray:
+    """A state buffer whose history ring holds a level vehicle from 0 to ``t_end_s`` with
+    the piecewise-constant NED acceleration ``a_of_t`` ((start s, (3,) m/s^2), ...) from
+    rest at (0.5, 0.2) rad; the present state is the newest entry."""
+    buf = np.zeros(st.SIZE)
+    st.history_reset(buf)
+    vel = np.zeros(3)
+    n = round(t_end_s / dt_s) + 1
+    for k in range(n):
+        t = k * dt_s
+        if k:
+            a = [acc for t0, acc in a_of_t if t0 < t][-1]
+            vel = vel + a * dt_s
+        i = k % st.HIST_LEN
+        o = st.HIST + i * st.HIST_W
+        buf[o] = t * 1e6
+        buf[o + 1:o + 10] = np.eye(3).ravel()
+        buf[o + 10:o + 13] = vel
+        buf[o + 13:o + 16] = (0.5, 0.2, 10.0)
+        buf[st.HIST_I] = i
+    buf[st.MAT:st.MAT + 9] = np.eye(3).ravel()
+    buf[st.VEL:st.VEL + 3] = vel
+    buf[st.POS:st.POS + 3] = (0.5, 0.2, 10.0)
+    return buf
+
+
+def test_gnss_noise_of_an_unknown_latency() -> None:
+    """GIVEN a state history in which the vehicle accelerated at a1 until 3 s and at a2
+    after (100 Hz, a ring of 5.12 s), and a fix whose latency is off by dt ~ N(0, s^2),
+    WHEN the velocity and position blocks are filled with delay_var = s^2 at 4.5 s,
+    THEN the velocity R grows by s^2 a2 a2^T (the newest second's acceleration, not the
+    ring's mean) and the position R by s^2 v v^T, as 100,000 draws of the lag's errors
+    a2 dt and v dt say (to 2 %); a ring of less than 50 ms, and delay_var 0, add nothing."""
+    a1 = np.array([0.0, 0.0, 0.0])
+    a2 = np.array([1.5, -2.0, 0.3])
+    buf = _ring_of([(-1.0, a1), (3.0, a2)], 4.5, 0.01)
+    s2 = 0.1 ** 2
+    rv = buf[st.R:st.R + 16].reshape(4, 4)
+    st.fill_velocity(buf, 0.0, 0.0, 0.0, 0.2, 0.3, 0.0, 0.0)
+    r0 = rv.copy()
+    st.fill_velocity(buf, 0.0, 0.0, 0.0, 0.2, 0.3, 0.0, s2)
+    np.testing.assert_allclose(rv[:3, :3] - r0[:3, :3], s2 * np.outer(a2, a2), rtol=1e-9,
+                               atol=1e-12)
+    rng = np.random.default_rng(3)
+    lag = rng.normal(0.0, 0.1, 100_000)
+    np.testing.assert_allclose(np.cov((lag[:, None] * a2).T), s2 * np.outer(a2, a2),
+                               rtol=0.02, atol=1e-4)
+    vel = buf[st.VEL:st.VEL + 3].copy()
+    st.fill_position(buf, 0.5, 0.2, 10.0, 1.0, 2.0, 0.0)
+    p0 = rv.copy()
+    st.fill_position(buf, 0.5, 0.2, 10.0, 1.0, 2.0, s2)
+    np.testing.assert_allclose(rv[:3, :3] - p0[:3, :3], s2 * np.outer(vel, vel), rtol=1e-9,
+                               atol=1e-12)
+    np.testing.assert_allclose(np.cov((lag[:, None] * vel).T), s2 * np.outer(vel, vel),
+                               rtol=0.02, atol=1e-3)
+    short = _ring_of([(-1.0, a2)], 0.04, 0.01)
+    st.fill_velocity(short, 0.0, 0.0, 0.0, 0.2, 0.3, 0.0, 0.0)
+    r_short = short[st.R:st.R + 16].copy()
+    st.fill_velocity(short, 0.0, 0.0, 0.0, 0.2, 0.3, 0.0, s2)
+    np.testing.assert_array_equal(short[st.R:st.R + 16], r_short)

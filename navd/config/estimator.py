@@ -102,6 +102,12 @@ _GR = IMU_GRADES[DEFAULT_IMU_GRADE]
 # it changes no simulated figure by more than 0.02 deg (docs/results.md, "The antenna's
 # lever arm").
 LEVER_ARM_SD_M = 0.5
+# [gnss] delay_sd_ms default (ms): off.  At 100 ms it halves the velocity NEES of the
+# simulated 200 ms receiver lag but costs the clean car 10 % of its heading accuracy, and
+# on the exactly stamped simulated car it raises the gyro-bias walk scale (to 8) and keeps
+# the learnt biases from being stored (docs/results.md, "A receiver's latency as noise");
+# a user who stamps fixes on arrival sets it.
+DELAY_SD_MS = 0.0
 
 
 def imu_table_with_grade(table: Any) -> Any:
@@ -202,11 +208,16 @@ class GnssSection:
     # fixes stamped this long after their time of validity (a receiver or autopilot that
     # stamps on arrival); PX4's EKF2_GPS_DELAY, ArduPilot's GPS_DELAY_MS
     delay: float = _f(0.0, "ms")
+    # 1-sigma by which delay may be off (a receiver's latency nobody measured: 0.1-0.3 s
+    # for a fix stamped on arrival).  Its errors, v dt in position and a dt in velocity,
+    # go into the GNSS noise while the vehicle moves, accelerates or turns.
+    delay_sd: float = _f(DELAY_SD_MS, "ms")
     use_position: bool = _f(True)
     use_velocity: bool = _f(True)
 
     def validate(self) -> None:
         check(self.lever_arm_sd >= 0.0, "gnss", "lever_arm_sd_m", ">= 0 (m)")
+        check(self.delay_sd >= 0.0, "gnss", "delay_sd_ms", ">= 0 (ms)")
 
 
 @dataclass(frozen=True)

@@ -348,19 +348,67 @@ def inject(buf: Arr) -> None:
 
 @jit
 def fill_position(buf: Arr, lat: float, lon: float, alt: float, sd_h: float,
-                  sd_v: float) -> int:
-    return gnss_position.fill(buf[H:H + 60].reshape((4, 15)), buf[Z:Z + 4],
-                              buf[R:R + 16].reshape((4, 4)), buf[MAT:MAT + 9].reshape((3, 3)),
-                              buf[POS:POS + 3], buf[LEVER:LEVER + 3], lat, lon, alt, sd_h, sd_v)
+                  sd_v: float, delay_var: float = 0.0) -> int:
+    """Position rows; ``delay_var`` (s^2): variance of the fix's unknown latency, whose
+    position error v dt joins R (:func:`navd.core.aiding.gnss_position.delay_noise`)."""
+    m = gnss_position.fill(buf[H:H + 60].reshape((4, 15)), buf[Z:Z + 4],
+                           buf[R:R + 16].reshape((4, 4)), buf[MAT:MAT + 9].reshape((3, 3)),
+                           buf[POS:POS + 3], buf[LEVER:LEVER + 3], lat, lon, alt, sd_h, sd_v)
+    if delay_var > 0.0:
+        gnss_position.delay_noise(buf[R:R + 16].reshape((4, 4)), buf[VEL:VEL + 3], delay_var)
+    return m
+
+
+# span of the INS velocity change that stands for the vehicle's acceleration in the latency
+# allowance (at most the ring's, 0.5 s at 1 kHz): long enough that the accelerometer's white
+# noise in it stays small (a consumer VRW of 0.3 m/s/sqrt(s) leaves 0.3 m/s^2 per axis over
+# 1 s; over 0.4 s, 0.47, which cost the clean car 40 % of its heading accuracy)
+ACCEL_SPAN_US = 1e6
+
+
+@jit
+def history_accel(buf: Arr) -> tuple[float, float, float]:
+    """The NED acceleration (m/s^2) over the newest ~ACCEL_SPAN_US of the history ring, from
+    its velocities (every correction moves all entries alike, so their difference is the
+    propagation's); zeros when the ring holds less than 50 ms."""
+    i = int(buf[HIST_I])
+    if i < 0:
+        return 0.0, 0.0, 0.0
+    o_new = HIST + i * HIST_W
+    t_new = buf[o_new]
+    o_old = o_new
+    for _ in range(HIST_LEN - 1):
+        i -= 1
+        if i < 0:
+            i = HIST_LEN - 1
+        o = HIST + i * HIST_W
+        t = buf[o]
+        if t < 0.0 or t > t_new:
+            break
+        o_old = o
+        if t_new - t >= ACCEL_SPAN_US:
+            break
+    dt = (t_new - buf[o_old]) * 1e-6
+    if dt < 0.05:
+        return 0.0, 0.0, 0.0
+    return ((buf[o_new + 10] - buf[o_old + 10]) / dt, (buf[o_new + 11] - buf[o_old + 11]) / dt,
+            (buf[o_new + 12] - buf[o_old + 12]) / dt)
 
 
 @jit
 def fill_velocity(buf: Arr, vn: float, ve: float, vd: float, sd_h: float, sd_v: float,
-                  lever_var: float) -> int:
-    return gnss_velocity.fill(buf[H:H + 60].reshape((4, 15)), buf[Z:Z + 4],
-                              buf[R:R + 16].reshape((4, 4)), buf[MAT:MAT + 9].reshape((3, 3)),
-                              buf[VEL:VEL + 3], buf[RATE:RATE + 3], buf[LEVER:LEVER + 3],
-                              vn, ve, vd, sd_h, sd_v, lever_var)
+                  lever_var: float, delay_var: float = 0.0) -> int:
+    """Velocity rows; ``delay_var`` (s^2): variance of the fix's unknown latency, whose
+    velocity error a dt joins R (:func:`navd.core.aiding.gnss_velocity.delay_noise`, a from
+    :func:`history_accel`)."""
+    m = gnss_velocity.fill(buf[H:H + 60].reshape((4, 15)), buf[Z:Z + 4],
+                           buf[R:R + 16].reshape((4, 4)), buf[MAT:MAT + 9].reshape((3, 3)),
+                           buf[VEL:VEL + 3], buf[RATE:RATE + 3], buf[LEVER:LEVER + 3],
+                           vn, ve, vd, sd_h, sd_v, lever_var)
+    if delay_var > 0.0:
+        ax, ay, az = history_accel(buf)
+        gnss_velocity.delay_noise(buf[R:R + 16].reshape((4, 4)), ax, ay, az, delay_var)
+    return m
 
 
 @jit

@@ -64,6 +64,8 @@ class GnssAiding:
         c = cfg
         self.cfg = cfg
         self._gate3 = chi2_quantile(c.filter.gate_prob, 3)
+        # the unknown part of the receiver's latency, as position noise v v^T delay_var
+        self._delay_var = c.gnss.delay_sd * c.gnss.delay_sd
         self.course = CourseHeading(cfg)
         # the IMU's pitch on a ground vehicle, from the velocity in body axes (a check)
         self.mount_check = PitchMountCheck(cfg)
@@ -230,7 +232,8 @@ class GnssAiding:
         rate0 = m_nb[2, 0] * bg[0] + m_nb[2, 1] * bg[1] + m_nb[2, 2] * bg[2]
         if c.gnss.use_position:
             swapped = est.state_at(g.t_us) is True
-            m = st.fill_position(est.buf, g.lat_rad, g.lon_rad, g.alt_m, h_sd, v_sd)
+            m = st.fill_position(est.buf, g.lat_rad, g.lon_rad, g.alt_m, h_sd, v_sd,
+                                 self._delay_var)
             if swapped:
                 est.state_restore()
             est.record_innovation(INNOV_POS, 0, 3,

@@ -208,6 +208,7 @@ class CourseHeading:
         self.sd_beta = (c.heading.sideslip_sd if c.filter.profile in ("ground", "boat")
                         else c.heading.crab_sd)
         self._lever_var = c.gnss.lever_arm_sd * c.gnss.lever_arm_sd
+        self._delay_var = c.gnss.delay_sd * c.gnss.delay_sd
         self._install_var = c.imu.mount_yaw_sd * c.imu.mount_yaw_sd
         self.status = "off"
         self.rejects = 0
@@ -412,7 +413,8 @@ class CourseHeading:
         # no vertical velocity reported: use our own with a variance that ignores it
         vd, sd_v = (g.vel_d, s_sd) if math.isfinite(g.vel_d) else (float(est.vel_n[2]), 1e3)
         swapped = est.state_at(g.t_us) is True
-        m = st.fill_velocity(est.buf, g.vel_n, g.vel_e, vd, s_sd, sd_v, self._lever_var)
+        m = st.fill_velocity(est.buf, g.vel_n, g.vel_e, vd, s_sd, sd_v, self._lever_var,
+                             self._delay_var)
         return m, swapped
 
     def _velocity_alone(self, est: Estimator, g: GnssSample, s_sd: float, hold: int,

@@ -54,3 +54,13 @@ def fill(H: Arr, z: Arr, R: Arr, mat_nb: Arr, pos: Arr, lever_b: Arr,
     R[1, 1] = sd_h * sd_h
     R[2, 2] = sd_v * sd_v
     return 3
+
+
+@jit
+def delay_noise(R: Arr, vel_n: Arr, delay_var: float) -> None:
+    """R[0:3, 0:3] += delay_var v v^T: the covariance of the position error v dt of a fix
+    whose time of validity is off by dt ~ N(0, delay_var) (s^2), v = ``vel_n`` (3,) NED m/s
+    (:func:`navd.core.aiding.gnss_velocity.delay_noise`)."""
+    for i in range(3):
+        for j in range(3):
+            R[i, j] += delay_var * vel_n[i] * vel_n[j]

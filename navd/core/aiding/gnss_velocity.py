@@ -81,3 +81,16 @@ def lever_noise(R: Arr, mat_nb: Arr, rate_b: Arr, lever_var: float) -> None:
         for j in range(3):
             m = (ww if i == j else 0.0) - cw[i] * cw[j]
             R[i, j] += lever_var * m
+
+
+@jit
+def delay_noise(R: Arr, ax: float, ay: float, az: float, delay_var: float) -> None:
+    """R[0:3, 0:3] += delay_var a a^T: the covariance of the velocity error a dt of a fix
+    whose time of validity is off by dt ~ N(0, delay_var) (s^2), a the vehicle's NED
+    acceleration (m/s^2).  Like the lever arm's, the error is one fixed latency taken as
+    white: it keeps a lagging receiver's velocities from being trusted while the vehicle
+    accelerates or turns (a turn's lag looks like a yaw error of yaw rate x dt)."""
+    a = (ax, ay, az)
+    for i in range(3):
+        for j in range(3):
+            R[i, j] += delay_var * a[i] * a[j]
