@@ -172,7 +172,7 @@ def _tilted_at_rest(relevel: bool, monkeypatch: pytest.MonkeyPatch) -> tuple[Est
     the velocity outcomes and the final roll error in units of the filter's roll sigma."""
     from navd.core.aiding import gnss_recovery
     if not relevel:
-        monkeypatch.setattr(gnss_recovery, "_relevel_at_rest", lambda est: None)
+        monkeypatch.setattr(gnss_recovery, "relevel_at_rest", lambda est: False)
     sc = load_scenario("static", {"duration_s": 60.0, "gnss.rate_hz": 10.0})
     r = generate(sc, seed=1, progress=False)
     est = build_estimator(load_config(None, []))

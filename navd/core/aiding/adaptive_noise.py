@@ -84,7 +84,8 @@ from navd.core.aiding.base import (
     INNOV_VEL,
     REJECTED,
 )
-from navd.core.aiding.gnss_recovery import ACCEL_BIAS_LIMIT, GYRO_BIAS_LIMIT
+from navd.core.aiding.gnss_recovery import ACCEL_BIAS_LIMIT
+from navd.core.aiding.gyro_rest import GYRO_BIAS_LIMIT
 from navd.core.chi2 import chi2_quantile
 from navd.units import G0
 

@@ -56,9 +56,13 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
+import numpy as np
+import numpy.typing as npt
+
 from navd.config import EstimatorConfig
 from navd.core import state as st
 from navd.core.aiding.base import ACCEPTED, INNOV_FLAG, INNOV_POS, INNOV_VEL, NOT_TRIED
+from navd.core.aiding.gyro_rest import GYRO_BIAS_LIMIT, turning
 from navd.core.earth import gravity, radii
 from navd.core.level import relevel_cov
 from navd.core.rotation import euler_to_mat_into
@@ -70,7 +74,6 @@ _POS = 6  # error-state index of dlat (then dlon, dh)
 _VEL = 3  # error-state index of dv_N
 _BG = 9  # error-state index of the gyro bias (then the accelerometer bias at 12)
 
-GYRO_BIAS_LIMIT = 10.0 * math.pi / 180.0  # rad/s: beyond any MEMS gyro's offset
 ACCEL_BIAS_LIMIT = 1.5  # m/s^2: beyond any MEMS accelerometer's offset
 _JITTER = 1.25  # a fix may arrive this many nominal intervals after the previous one
 _REST_SPEED = 0.5  # m/s: GNSS horizontal speed below which a velocity reset may re-level
@@ -186,24 +189,30 @@ class LockoutRecovery:
         # what drove the velocity away is in doubt as much as at the start
         _widen_attitude_and_biases(est)
         if est.gnss.last_speed_h < _REST_SPEED:
-            _relevel_at_rest(est)
+            relevel_at_rest(est)
         st.history_reset(est.buf)
         est.counters["reset_lockout_vel"] += 1
 
 
-def _relevel_at_rest(est: Estimator) -> None:
-    """Roll and pitch from the last still IMU window's mean specific force (module doc)."""
-    w = est.gyro_rest.last_window  # mean rate (3), mean specific force (3), end time (us)
+def relevel_at_rest(est: Estimator, w: npt.NDArray[np.float64] | None = None) -> bool:
+    """Roll and pitch from the last still IMU window's mean specific force (module doc);
+    whether it was done.  ``w``: another still window (mean raw rate (3), mean raw specific
+    force (3), end time (us)), the at-rest gyro calibration's run when it finds a gyro bias
+    that has been tilting the attitude (aiding/gyro_rest.py)."""
+    if w is None:
+        w = est.gyro_rest.last_window
     if w[6] < 0.0 or est.t_us - w[6] > _LEVEL_WINDOW_AGE_US:
-        return
+        return False
     c = est.cfg
-    if math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]) > c.init.static_rate_tol:
-        return
+    cb = est.gyro_rest.cal_bias
+    if turning(w[0], w[1], w[2], w[3], w[4], w[5], float(cb[0]), float(cb[1]), float(cb[2]),
+               c.init.static_rate_tol, est.gyro_rest.calibrated):
+        return False
     ba = est.bias_a
     fx, fy, fz = w[3] - ba[0], w[4] - ba[1], w[5] - ba[2]
     g = gravity(float(est.pos[0]), float(est.pos[2]))
     if abs(math.sqrt(fx * fx + fy * fy + fz * fz) - g) > _LEVEL_F_TOL:
-        return
+        return False
     C = est.mat_nb
     yaw = math.atan2(float(C[1, 0]), float(C[0, 0]))
     # the body's down axis in n before the re-level, to tell how far the tilt moved
@@ -223,6 +232,9 @@ def _relevel_at_rest(est: Estimator) -> None:
         P[2, 2] = (math.pi / 2.0) ** 2
         est.gnss.course.yaw_known(float(P[2, 2]), yaw, est.t_us * 1e-6, float(P[11, 11]))
     est.counters["reset_level_at_rest"] += 1
+    # a delayed fix must not be linearised about the attitude from before
+    st.history_reset(est.buf)
+    return True
 
 
 def _widen_attitude_and_biases(est: Estimator) -> None:

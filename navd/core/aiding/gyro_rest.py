@@ -9,8 +9,9 @@ which GNSS fixes at rest cannot.
 
 Stillness.  "At rest" is decided from the IMU itself, over windows of ``_WINDOW_S``:
 
-* every window's mean rate is below ``[init] static_rate_tol_dps`` and its mean specific
-  force is within ``_F_TOL`` of gravity (no turning, no acceleration);
+* every window's mean rate less the bias is below ``[init] static_rate_tol_dps`` (before
+  the first measurement: its part about the vertical, see :func:`turning`) and its mean
+  specific force within ``_F_TOL`` of gravity (no turning, no acceleration);
 * across ``_WINDOWS`` consecutive windows, the window means of rate *and* specific force
   scatter no more than the noise inside the windows allows (an Allan-variance test at one
   window length: sum over axes and windows of (mean_k - grand mean)^2 / (s^2 / n), which is
@@ -90,6 +91,9 @@ if TYPE_CHECKING:
 
 Arr = npt.NDArray[np.float64]
 
+# rad/s: beyond any MEMS gyro's offset (consumer parts are specified to a few deg/s); also
+# the lock-out recovery's limit on the bias estimate (aiding/gnss_recovery.py)
+GYRO_BIAS_LIMIT = 10.0 * math.pi / 180.0
 _WINDOW_S = 1.0  # one stillness window
 _WINDOWS = 10  # windows per test and per bias measurement (10 s at rest)
 _MIN_WINDOWS = 5  # a shorter still run that motion ends is measured from this many on
@@ -107,6 +111,38 @@ _VAR_FLOOR_ACCEL = 1e-10
 _ACC_W = 14
 _ACC_T = 13
 _BG = 9  # error-state index of the gyro bias
+
+
+@jit
+def turning(rx: float, ry: float, rz: float, fx: float, fy: float, fz: float, bx: float,
+            by: float, bz: float, rate_tol: float, calibrated: bool) -> bool:
+    """Whether a mean raw rate ``r`` (rad/s) with mean specific force ``f`` (m/s^2, the same
+    body axes) says the IMU turns.  Once the gyro has been calibrated at rest: the rate less
+    that calibration ``b`` (rad/s) above ``rate_tol``.  Before: only its component about
+    the vertical (along f) above ``rate_tol``; and in either case a rate beyond
+    :data:`GYRO_BIAS_LIMIT`.
+
+    Before calibration only the vertical part is ambiguous: a turn about a horizontal axis
+    turns gravity in the body (3 deg/s for one 1-s window tilts f by 3 deg, 0.5 m/s^2),
+    which the still test's trend and scatter of f refuse, while a steady yaw looks like an
+    offset.  A consumer gyro's offset is up to a few deg/s per axis (MPU-6000 class), so a
+    limit on the whole raw rate took such an IMU for turning: a multirotor whose offsets
+    were +3/-2.5/+2 deg/s (4.4 deg/s together, 2 about its vertical) at rest for 15 s was
+    never calibrated and its tilt ran 40-50 deg off (docs/results.md, "A consumer gyro's
+    offset beyond the stillness limit").  Afterwards the whole rate counts again: a
+    multirotor's specific force is its thrust, along the body whatever its tilt, so the f
+    tests do not see it tilt in a hover (log171 at 84 s: the window in which it began to
+    move went into a measurement, 0.03 deg/s off)."""
+    r2 = rx * rx + ry * ry + rz * rz
+    if r2 > GYRO_BIAS_LIMIT * GYRO_BIAS_LIMIT:
+        return True
+    if calibrated:
+        dx, dy, dz = rx - bx, ry - by, rz - bz
+        return dx * dx + dy * dy + dz * dz > rate_tol * rate_tol
+    f = math.sqrt(fx * fx + fy * fy + fz * fz)
+    if f <= 0.0:
+        return r2 > rate_tol * rate_tol
+    return abs(rx * fx + ry * fy + rz * fz) / f > rate_tol
 
 
 @jit
@@ -184,7 +220,8 @@ def _still(win: Arr, K: int, still_gate: float, trend_gate: float) -> bool:
 
 @jit
 def close_window(a: Arr, win: Arr, n: Arr, rate_tol: float, f_tol: float, g: float,
-                 still_gates: Arr, trend_gate: float, k_min: int, moving: bool) -> int:
+                 still_gates: Arr, trend_gate: float, k_min: int, moving: bool,
+                 bias: Arr, calibrated: bool) -> int:
     """Close the window accumulated in ``a`` into the run ``win`` (K, 13) holding ``n[0]``
     windows.  Returns -1: moving (run cleared), 0: collecting, 1: the K windows are still,
     2: motion ended a run whose first ``n[0]`` (>= k_min) windows are still (the last one
@@ -192,7 +229,9 @@ def close_window(a: Arr, win: Arr, n: Arr, rate_tol: float, f_tol: float, g: flo
 
     Per window: mean rate (3), mean specific force (3), sample variances of both (6), count.
     ``still_gates[k]``: the omnibus gate for k windows; ``moving``: another sensor (GNSS)
-    says this window ends in motion, whatever the IMU shows.
+    says this window ends in motion, whatever the IMU shows; ``bias`` (3,) rad/s and
+    ``calibrated``: the gyro offset last measured at rest and whether there is one
+    (:func:`turning`).
     """
     cnt = a[12]
     if cnt < 2.0:
@@ -208,9 +247,10 @@ def close_window(a: Arr, win: Arr, n: Arr, rate_tol: float, f_tol: float, g: flo
     win[k, 12] = cnt
     for i in range(a.shape[0]):
         a[i] = 0.0
-    rate = math.sqrt(win[k, 0] ** 2 + win[k, 1] ** 2 + win[k, 2] ** 2)
     f = math.sqrt(win[k, 3] ** 2 + win[k, 4] ** 2 + win[k, 5] ** 2)
-    if moving or rate > rate_tol or abs(f - g) > f_tol:
+    if (moving or turning(win[k, 0], win[k, 1], win[k, 2], win[k, 3], win[k, 4], win[k, 5],
+                          bias[0], bias[1], bias[2], rate_tol, calibrated)
+            or abs(f - g) > f_tol):
         if k - 1 >= k_min and _still(win, k - 1, float(still_gates[k - 1]), trend_gate):
             n[0] = k - 1
             return 2
@@ -261,6 +301,16 @@ class GyroRest:
         # re-levels from it (navd/core/aiding/gnss_recovery.py).
         self.last_window = np.zeros(7)
         self.last_window[6] = -1.0
+        # the same for the whole run of the present measurement (its re-level, below)
+        self._run_window = np.zeros(7)
+        # sensor time (us) since which the gyro bias has been as the filter believes: nav
+        # start or the last measurement it accepted (-1: not navigating yet)
+        self._bias_ok_us = -1
+        # the gyro offset last measured at rest (rad/s, body FRD) and whether there is one:
+        # the stillness test's (:func:`turning`).  The sensor's, not the state's, so a
+        # restart of the filter keeps it
+        self.cal_bias = np.zeros(3)
+        self.calibrated = False
 
     def reset(self) -> None:
         self.acc[:] = 0.0
@@ -268,6 +318,7 @@ class GyroRest:
         self._n_rej = 0
         self.still = False
         self.last_window[6] = -1.0
+        self._bias_ok_us = -1
 
     @property
     def windows(self) -> int:
@@ -287,7 +338,8 @@ class GyroRest:
         # windows still before it are the boot calibration that the start needs
         res = close_window(self.acc, self._win, self._n, self.cfg.init.static_rate_tol,
                            _F_TOL, g, self._still_gates, self._trend_gate, _MIN_WINDOWS,
-                           est.initialized and not self._at_rest(est))
+                           est.initialized and not self._at_rest(est), self.cal_bias,
+                           self.calibrated)
         self.still = res == 1
         if res <= 0:
             return
@@ -337,13 +389,23 @@ class GyroRest:
             var = max(float(np.mean(W[:, 6 + i])), _VAR_FLOOR_GYRO)
             R[i, i] = var / n_tot + _R_FLOOR
             rec[3 + i] = R[i, i]
+        rw = self._run_window
+        for i in range(6):
+            rw[i] = float(np.sum(W[:, i] * W[:, 12])) / n_tot
+        rw[6] = float(est.t_us)
+        if self._bias_ok_us < 0:
+            self._bias_ok_us = est.t_us - int(1e6 * k * self.window_s)
         hold = 2 if est.gnss.hold_enabled else -1
         self.updates += 1
         nis = est.fuse_block(3, self._gate3, "gyro_rest", hold)
         if nis >= 0.0 or nis == -math.inf:
             self._n_rej = 0
+            self._bias_ok_us = est.t_us
+            self.cal_bias[:] = bg
+            self.calibrated = True
             return
         self._n_rej += 1
+        self._refused(est, w_ie)
         if self._n_rej < _RESET_AFTER:
             return
         # refused _RESET_AFTER times in a row: if the refused readings agree with each other
@@ -369,7 +431,48 @@ class GyroRest:
             P[k, :] = 0.0
             P[:, k] = 0.0
             P[k, k] = float(np.mean(J[:, 3 + i])) / _RESET_AFTER + earth2
-        tilt2 = self.cfg.init.tilt_sd ** 2
-        P[0, 0] += tilt2
-        P[1, 1] += tilt2
         est.counters["reset_gyro_rest"] += 1
+        self.cal_bias[:] = bg
+        self.calibrated = True
+        # the wrong bias has been tilting the attitude since the start, by its horizontal
+        # part times the time (4.4 deg/s for 20 s: a tilt 40-50 deg off at a sigma of
+        # 5-10, velocity fixes accepted because the yaw bank held the tilt as a consider
+        # state, the unknown heading's acceleration being the tilt error's gravity); at
+        # rest the windows' specific force gives it again (the lock-out recovery's re-level)
+        self._bias_ok_us = est.t_us
+        if not self._relevel(est):
+            tilt2 = self.cfg.init.tilt_sd ** 2
+            P[0, 0] += tilt2
+            P[1, 1] += tilt2
+
+    def _relevel(self, est: Estimator) -> bool:
+        """Roll and pitch from the run's mean specific force (10 s of it: 0.5 deg of noise
+        at a consumer VRW, against 1.7 deg from the last 1-s window)."""
+        from navd.core.aiding.gnss_recovery import relevel_at_rest  # it imports this module
+        return relevel_at_rest(est, self._run_window)
+
+    def _refused(self, est: Estimator, w_ie: tuple[float, float, float]) -> None:
+        """A measurement refused: the bias is off by about z, the run's mean rate less bias
+        and earth rate ``w_ie`` (rad/s, NED) per body axis.  Where the horizontal part of z,
+        acting since the bias was last confirmed, has tilted the attitude by more than three
+        tilt sigmas, the state cannot wait for the second refusal: the gyro offset of 4.4
+        deg/s above had tilted it 20 deg by the first, 10 s in, and the velocity fixes,
+        with the yaw bank holding the tilt, would not bring it back.  Then the tilt is
+        re-levelled now and the bias variance widens by z^2, so that the fixes and the next
+        measurement may move it.  A smaller refusal (log171 on the ground before take-off:
+        0.03 deg/s at sigma 0.005, 0.4 deg of drift at a tilt sigma of 0.65) waits, as
+        before, for a second that agrees."""
+        P = est.P
+        C = est.mat_nb
+        bg, rw = est.bias_g, self._run_window
+        z = [float(bg[i]) + C[0, i] * w_ie[0] + C[1, i] * w_ie[1] + C[2, i] * w_ie[2]
+             - float(rw[i]) for i in range(3)]
+        zn = C[0, 0] * z[0] + C[0, 1] * z[1] + C[0, 2] * z[2]
+        ze = C[1, 0] * z[0] + C[1, 1] * z[1] + C[1, 2] * z[2]
+        drift = math.hypot(zn, ze) * max(est.t_us - self._bias_ok_us, 0) * 1e-6
+        if drift <= 3.0 * math.sqrt(max(float(P[0, 0]), float(P[1, 1]))):
+            return
+        if self._relevel(est):
+            for i in range(3):
+                P[_BG + i, _BG + i] += z[i] * z[i]
+            est.counters["gyro_rest_relevel"] += 1
