@@ -228,6 +228,10 @@ CASES: tuple[Case, ...] = (
     Case("boat_mast", "boat", "boat",
          "the boat's antenna on a 2.5 m mast 0.5 m forward, unstated; waves roll it 4 deg",
          overrides={"gnss.lever_arm_m": [0.5, 0.0, -2.5], "trajectory.sway_deg": 4.0}),
+    Case("boat_gyro_3", "boat", "boat",
+         "the boat with gyro offsets +3/-2.5/+2 deg/s (uncalibrated; under way from the "
+         "start, no rest to calibrate at)",
+         overrides={"imu.gyro_offset_rps": [3.0 * DEG, -2.5 * DEG, 2.0 * DEG]}),
     Case("vib_car", "car480", "ground",
          "BMI088-class IMU read as 100 Hz rate samples (20 Hz low-pass); engine vibration "
          "100 +- 3 Hz, 3/3/1.5 deg/s and 3/3/5 m/s^2, aliased to near DC",
