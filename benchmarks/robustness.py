@@ -297,6 +297,13 @@ CASES: tuple[Case, ...] = (
          overrides={"gnss.vel_noise_scale": 3.0}),
     Case("gnss_5hz", "car480", "ground", "GNSS at 5 Hz instead of 10 Hz",
          overrides={"gnss.rate_hz": 5.0}),
+    Case("gnss_1hz", "car480", "ground", "GNSS at 1 Hz (a receiver's default rate)",
+         overrides={"gnss.rate_hz": 1.0}),
+    Case("gnss_1hz_mr", "multirotor", "multirotor", "the multirotor with GNSS at 1 Hz",
+         overrides={"gnss.rate_hz": 1.0}),
+    Case("imu_50hz", "car480", "ground",
+         "IMU at 50 Hz (an autopilot's default RAW_IMU / SCALED_IMU stream rate)",
+         overrides={"imu.rate_hz": 50.0}),
     Case("latency_200ms", "car480", "ground",
          "fixes stamped on arrival, 200 ms after their time of validity; [gnss] delay_ms "
          "not set", overrides=dict(LATE_200MS)),
