@@ -303,8 +303,9 @@ class GyroRest:
         self.last_window[6] = -1.0
         # the same for the whole run of the present measurement (its re-level, below)
         self._run_window = np.zeros(7)
-        # sensor time (us) since which the gyro bias has been as the filter believes: nav
-        # start or the last measurement it accepted (-1: not navigating yet)
+        # sensor time (us) since which the gyro bias has been as the filter believes: the
+        # start of the first run measured, then the last measurement accepted or reset
+        # (-1: none yet)
         self._bias_ok_us = -1
         # the gyro offset last measured at rest (rad/s, body FRD) and whether there is one:
         # the stillness test's (:func:`turning`).  The sensor's, not the state's, so a
