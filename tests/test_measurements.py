@@ -667,9 +667,9 @@ def test_gnss_noise_of_an_unknown_latency() -> None:
     """GIVEN a state history in which the vehicle accelerated at a1 until 3 s and at a2
     after (100 Hz, a ring of 5.12 s), and a fix whose latency is off by dt ~ N(0, s^2),
     WHEN the velocity and position blocks are filled with delay_var = s^2 at 4.5 s,
-    THEN the velocity R grows by s^2 a2 a2^T (the newest second's acceleration, not the
-    ring's mean) and the position R by s^2 v v^T, as 100,000 draws of the lag's errors
-    a2 dt and v dt say (to 2 %); a ring of less than 50 ms, and delay_var 0, add nothing."""
+    THEN the velocity R grows by s^2 a2 a2^T (the covariance of the lag's error a2 dt; the
+    newest second's acceleration, not the ring's mean) and the position R by s^2 v v^T (of
+    v dt); a ring of less than 50 ms, and delay_var 0, add nothing."""
     a1 = np.array([0.0, 0.0, 0.0])
     a2 = np.array([1.5, -2.0, 0.3])
     buf = _ring_of([(-1.0, a1), (3.0, a2)], 4.5, 0.01)
@@ -680,18 +680,12 @@ def test_gnss_noise_of_an_unknown_latency() -> None:
     st.fill_velocity(buf, 0.0, 0.0, 0.0, 0.2, 0.3, 0.0, s2)
     np.testing.assert_allclose(rv[:3, :3] - r0[:3, :3], s2 * np.outer(a2, a2), rtol=1e-9,
                                atol=1e-12)
-    rng = np.random.default_rng(3)
-    lag = rng.normal(0.0, 0.1, 100_000)
-    np.testing.assert_allclose(np.cov((lag[:, None] * a2).T), s2 * np.outer(a2, a2),
-                               rtol=0.02, atol=1e-4)
     vel = buf[st.VEL:st.VEL + 3].copy()
     st.fill_position(buf, 0.5, 0.2, 10.0, 1.0, 2.0, 0.0)
     p0 = rv.copy()
     st.fill_position(buf, 0.5, 0.2, 10.0, 1.0, 2.0, s2)
     np.testing.assert_allclose(rv[:3, :3] - p0[:3, :3], s2 * np.outer(vel, vel), rtol=1e-9,
                                atol=1e-12)
-    np.testing.assert_allclose(np.cov((lag[:, None] * vel).T), s2 * np.outer(vel, vel),
-                               rtol=0.02, atol=1e-3)
     short = _ring_of([(-1.0, a2)], 0.04, 0.01)
     st.fill_velocity(short, 0.0, 0.0, 0.0, 0.2, 0.3, 0.0, 0.0)
     r_short = short[st.R:st.R + 16].copy()

@@ -379,9 +379,13 @@ class GyroRest:
         wx = ((0.0, -w_ie[2], w_ie[1]), (w_ie[2], 0.0, -w_ie[0]), (-w_ie[1], w_ie[0], 0.0))
         bg = est.bias_g
         rec = self._rej[self._n_rej]  # this measurement: mean raw rate (3), R diagonal (3)
+        rw = self._run_window  # the run's mean raw rate and specific force (re-levels)
+        for i in range(6):
+            rw[i] = float(np.sum(W[:, i] * W[:, 12])) / n_tot
+        rw[6] = float(est.t_us)
         for i in range(3):
             e_b = C[0, i] * w_ie[0] + C[1, i] * w_ie[1] + C[2, i] * w_ie[2]  # (C^T w)_i
-            rec[i] = float(np.sum(W[:, i] * W[:, 12])) / n_tot
+            rec[i] = float(rw[i])
             z[i] = float(bg[i]) + e_b - rec[i]
             # -(C^T [w x])_i,j = -sum_k C[k, i] wx[k][j]
             for j in range(3):
@@ -390,10 +394,6 @@ class GyroRest:
             var = max(float(np.mean(W[:, 6 + i])), _VAR_FLOOR_GYRO)
             R[i, i] = var / n_tot + _R_FLOOR
             rec[3 + i] = R[i, i]
-        rw = self._run_window
-        for i in range(6):
-            rw[i] = float(np.sum(W[:, i] * W[:, 12])) / n_tot
-        rw[6] = float(est.t_us)
         if self._bias_ok_us < 0:
             self._bias_ok_us = est.t_us - int(1e6 * k * self.window_s)
         hold = 2 if est.gnss.hold_enabled else -1
