@@ -226,7 +226,8 @@ class GnssAiding:
         yaw0 = math.atan2(m_nb[1, 0], m_nb[0, 0])
         if has_vel_h and self.course.align.course_checks:
             self._direction_before(est, g, s_sd)
-        self.course.begin_epoch(g.t_us * 1e-6, yaw0)
+        self.course.begin_epoch(g.t_us * 1e-6, yaw0, float(est.buf[st.Q + 2]),
+                                float(est.buf[st.Q + 11]))
         self.adaptive.before_epoch(est)
         bg = est.bias_g
         rate0 = m_nb[2, 0] * bg[0] + m_nb[2, 1] * bg[1] + m_nb[2, 2] * bg[2]

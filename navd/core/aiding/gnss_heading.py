@@ -334,11 +334,11 @@ class CourseHeading:
         if self.watch is not None:
             self.watch.widen(var)
 
-    def begin_epoch(self, t_s: float, yaw: float) -> None:
+    def begin_epoch(self, t_s: float, yaw: float, q_yaw: float, q_rate: float) -> None:
         self.noise.begin_epoch(yaw)
-        self.learn.begin_epoch(t_s, yaw)
+        self.learn.begin_epoch(t_s, yaw, q_yaw, q_rate)
         if self.watch is not None:
-            self.watch.begin_epoch(t_s, yaw)
+            self.watch.begin_epoch(t_s, yaw, q_yaw, q_rate)
 
     def end_epoch(self, est: Estimator, P: Arr, d_yaw: float, yaw: float,
                   d_rate: float) -> None:
