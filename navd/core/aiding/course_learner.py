@@ -75,16 +75,18 @@ SF_MAX_SD = 5.0
 # the current's random walk, m^2/s^3: a tide turns over hours, ~0.1 m/s in 10 minutes
 _CURRENT_Q = 0.1 * 0.1 / 600.0
 # scalar slots of ``_v``: the epoch's lateral acceleration (m/s^2), the main filter's yaw
-# variance after the last epoch (rad^2), the time of the last epoch (s), whether e is
-# defined (the yaw has been set), whether it was set during this epoch and the yaw it was
-# set to (rad)
+# after the last epoch (rad), the time of the last epoch (s), whether e is defined (the yaw
+# has been set), whether it was set during this epoch and the yaw it was set to (rad); the
+# row's low-passed speed (m/s) and its time (s), the row-noise scale, the row's last NIS,
+# the watch's count and flag of epochs with a current, e_hat where the row's frame was
+# anchored (rad)
 (_ALAT, _YAW_END, _T, _E_SET, _SET_NOW, _YAW_SET, _VLP, _T_LP, _RQ, _NIS, _SUSP_N,
  _SUSPECT, _EREF) = range(13)
 # the speed in the boat's row is low-passed (s): its noise (the INS's, 10 % in the first
 # seconds, correlated over seconds) reads as speed changes, which separate the crab's
 # current from the heading: at 3 s a straight leg with 0.1 m/s of INS speed error (5-s
-# correlation) took the learnt heading's sigma from 18 to 5 deg with its error beyond 3 sigma
-# in 15 % of the epochs (tests/test_boat.py); the low-pass's lag in a real speed change is
+# correlation) took the learnt heading's sigma from 18 to 4-6 deg with its error beyond
+# 3 sigma in 16 % of the epochs (tests/test_boat.py); the low-pass's lag in a real speed change is
 # in the row's noise (step_lateral).  3-1000 s tried, docs/results.md
 _V_TAU = 20.0
 # the row's heading frame stays where it was anchored until e_hat has moved this far from
@@ -281,8 +283,7 @@ class CourseLearner:
         fix's noise made the current look observable on a straight leg, where only the crab
         (the current across the heading, with the heading error) is; a row in the main
         filter's frame, or one taken at e_hat in it, read the main filter's corrections as
-        turns. ``r``: m^2/s^2;
-        ``gate``: chi-square(1) bound.
+        turns.  ``r``: m^2/s^2; ``gate``: chi-square(1) bound.
         """
         v = self._v
         if abs(self._e_off()) > _EREF_MAX:
