@@ -315,10 +315,11 @@ class CourseLearner:
         # so does the low-pass's lag behind a real speed change, dV (e_off - de): without
         # it, boat_gnss_vel_x3 was beyond 3 sigma in 6.1 % of the instants (12 seeds)
         lag = along - float(v[_VLP]) if math.isfinite(along) else 0.0
-        so = math.sin(self._e_off())
+        e_off = self._e_off()
+        so = math.sin(e_off)
         r += (var_along + lag * lag) * (float(P[E, E]) + so * so)
         v[_NIS] = -1.0
-        ok = self._update(y - speed * math.sin(float(self.x[K]) * a_lat + self._e_off()),
+        ok = self._update(y - speed * math.sin(float(self.x[K]) * a_lat + e_off),
                           r * float(v[_RQ]), gate, False)
         if v[_NIS] >= 0.0:
             # NIS of this row (gated ones excluded): its mean is 1 when r is right
